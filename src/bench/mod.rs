@@ -1,0 +1,2 @@
+//! Benchmarks run by `facesim bench`.
+pub mod solver;

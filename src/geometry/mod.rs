@@ -1,0 +1,6 @@
+//! Geometry: tetrahedral meshes and generated test meshes.
+
+pub mod generate;
+pub mod tet_mesh;
+
+pub use tet_mesh::{MeshError, TetMesh};

@@ -1,0 +1,184 @@
+//! Bone attachment energy: tissue vertices pulled to points that move rigidly with the skull
+//! or the jaw (soft constraints, the paper's supplemental Eq. 5 with `B = I`):
+//!
+//! `E = Σₐ (kₐ/2)·‖xₐ − T_bone(pₐ)‖²`,
+//!
+//! with `pₐ` the vertex's rest position. The skull moves by `T_skull` (the head's motion,
+//! identity for a fixed head); the jaw by `T_skull ∘ T_jaw`, where `T_jaw` rotates about the
+//! jaw's pivot: `T_jaw(p) = R(θ)·(p − c) + c + t`.
+
+use nalgebra::{Matrix3, Point3, Rotation3, Vector3};
+use serde::{Deserialize, Serialize};
+
+use super::polar::skew;
+
+/// Which bone a tissue vertex is attached to.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Bone {
+    Skull,
+    Jaw,
+}
+
+/// Attached vertices and their bones.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Attachments {
+    pub vertices: Vec<u32>,
+    pub bones: Vec<Bone>,
+}
+
+/// A rigid motion: rotation vector `θ` (axis × angle, radians) and translation `t`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct RigidMotion {
+    pub rotation: Vector3<f64>,
+    pub translation: Vector3<f64>,
+}
+
+impl RigidMotion {
+    pub const IDENTITY: RigidMotion = RigidMotion {
+        rotation: Vector3::new(0.0, 0.0, 0.0),
+        translation: Vector3::new(0.0, 0.0, 0.0),
+    };
+
+    /// The 6 parameters `[θx, θy, θz, tx, ty, tz]` (the jaw network's output).
+    pub fn from_params(p: [f64; 6]) -> Self {
+        Self {
+            rotation: Vector3::new(p[0], p[1], p[2]),
+            translation: Vector3::new(p[3], p[4], p[5]),
+        }
+    }
+
+    pub fn params(&self) -> [f64; 6] {
+        let (r, t) = (self.rotation, self.translation);
+        [r.x, r.y, r.z, t.x, t.y, t.z]
+    }
+
+    pub fn rotation_matrix(&self) -> Matrix3<f64> {
+        Rotation3::from_scaled_axis(self.rotation).into_inner()
+    }
+
+    /// `R·(p − pivot) + pivot + t`.
+    pub fn apply_about(&self, pivot: &Point3<f64>, p: &Point3<f64>) -> Point3<f64> {
+        pivot + self.rotation_matrix() * (p - pivot) + self.translation
+    }
+
+    pub fn is_finite(&self) -> bool {
+        self.rotation
+            .iter()
+            .chain(self.translation.iter())
+            .all(|v| v.is_finite())
+    }
+}
+
+/// Where the bones are for one frame.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct BonePose {
+    /// The head's rigid motion (about the origin); identity for a fixed head.
+    pub skull: RigidMotion,
+    /// The jaw's motion relative to the skull, about the jaw pivot.
+    pub jaw: RigidMotion,
+}
+
+impl BonePose {
+    /// Where a rest point attached to `bone` goes.
+    pub fn target(&self, bone: Bone, jaw_pivot: &Point3<f64>, rest: &Point3<f64>) -> Point3<f64> {
+        let on_skull = match bone {
+            Bone::Skull => *rest,
+            Bone::Jaw => self.jaw.apply_about(jaw_pivot, rest),
+        };
+        self.skull.apply_about(&Point3::origin(), &on_skull)
+    }
+
+    /// `∂ target / ∂ [θ, t]` of a jaw-attached rest point: a 3×6 Jacobian.
+    pub fn jaw_target_jacobian(
+        &self,
+        jaw_pivot: &Point3<f64>,
+        rest: &Point3<f64>,
+    ) -> nalgebra::Matrix3x6<f64> {
+        let rs = self.skull.rotation_matrix();
+        let v = rest - jaw_pivot;
+        let mut jac = nalgebra::Matrix3x6::zeros();
+        for k in 0..3 {
+            jac.set_column(k, &(rs * rotation_derivative(&self.jaw.rotation, k) * v));
+        }
+        jac.fixed_view_mut::<3, 3>(0, 3).copy_from(&rs);
+        jac
+    }
+}
+
+/// `∂R(θ)/∂θₖ` for the rotation-vector parameterization (Gallego & Yezzi 2015):
+/// `((θₖ·[θ]× + [θ × (I − R)·eₖ]×) / ‖θ‖²)·R`, and `[eₖ]×` at `θ = 0`.
+pub fn rotation_derivative(theta: &Vector3<f64>, k: usize) -> Matrix3<f64> {
+    let r = Rotation3::from_scaled_axis(*theta).into_inner();
+    let n2 = theta.norm_squared();
+    let e = Vector3::ith(k, 1.0);
+    if n2 < 1e-20 {
+        return skew(&e) * r;
+    }
+    (skew(theta) * theta[k] + skew(&theta.cross(&((Matrix3::identity() - r) * e)))) / n2 * r
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn jaw_target_jacobian_matches_finite_differences() {
+        let pivot = Point3::new(0.0, -2.0, -5.0);
+        let rest = Point3::new(1.0, -4.0, 3.0);
+        for jaw_rot in [
+            Vector3::zeros(),
+            Vector3::new(0.3, -0.1, 0.2),
+            Vector3::new(1e-12, 0.0, 0.0),
+        ] {
+            let pose = BonePose {
+                skull: RigidMotion {
+                    rotation: Vector3::new(0.1, 0.2, -0.3),
+                    translation: Vector3::new(1.0, 0.0, 2.0),
+                },
+                jaw: RigidMotion {
+                    rotation: jaw_rot,
+                    translation: Vector3::new(0.0, -0.5, 0.2),
+                },
+            };
+            let jac = pose.jaw_target_jacobian(&pivot, &rest);
+            let h = 1e-6;
+            for k in 0..6 {
+                let mut p = pose.jaw.params();
+                p[k] += h;
+                let plus = BonePose {
+                    jaw: RigidMotion::from_params(p),
+                    ..pose
+                }
+                .target(Bone::Jaw, &pivot, &rest);
+                p[k] -= 2.0 * h;
+                let minus = BonePose {
+                    jaw: RigidMotion::from_params(p),
+                    ..pose
+                }
+                .target(Bone::Jaw, &pivot, &rest);
+                let fd = (plus - minus) / (2.0 * h);
+                assert!(
+                    (fd - jac.column(k)).norm() < 1e-8,
+                    "k={k} fd={fd} jac={}",
+                    jac.column(k)
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn skull_points_follow_only_the_skull() {
+        let pose = BonePose {
+            skull: RigidMotion {
+                rotation: Vector3::new(0.0, 0.0, std::f64::consts::FRAC_PI_2),
+                translation: Vector3::x(),
+            },
+            jaw: RigidMotion {
+                rotation: Vector3::new(0.5, 0.0, 0.0),
+                translation: Vector3::y(),
+            },
+        };
+        let p = pose.target(Bone::Skull, &Point3::origin(), &Point3::new(1.0, 0.0, 0.0));
+        assert!((p - Point3::new(1.0, 1.0, 0.0)).norm() < 1e-12);
+    }
+}

@@ -1,0 +1,21 @@
+//! The quasistatic soft-tissue simulator.
+//!
+//! Data flows `actuations + bone pose → Simulator::solve (local sweep ⇄ global solve) → SimState`,
+//! and back through `Simulator::sensitivities` for training.
+
+pub mod adjoint;
+pub mod attachment;
+pub mod deformation;
+pub mod global_matrix;
+pub mod polar;
+pub mod shape_targeting;
+pub mod simulator;
+pub mod solver;
+pub mod tensor;
+mod vector;
+
+pub use adjoint::Sensitivities;
+pub use attachment::{Attachments, Bone, BonePose, RigidMotion};
+pub use simulator::{SimConfig, SimError, SimState, Simulator};
+pub use solver::{Quality, SolveSettings, SolveStats, Termination};
+pub use tensor::SymTensor;
