@@ -3,6 +3,9 @@
 //!
 //! See ARCHITECTURE.md for how the modules fit together.
 
+// `!(x > 0.0)` is deliberate throughout: it rejects NaN together with non-positive values.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
 pub mod bench;
 pub mod geometry;
 pub mod scene;

@@ -59,7 +59,7 @@ impl Simulator {
         self.check_state(state)?;
         let frame = self.frame(actuations, bones)?;
         let mut steps = state.steps.clone();
-        let energy = self.local_sweep(&frame, &state.x, &state.steps, &mut steps);
+        let energy = self.local_sweep(&frame, &state.x, None, &mut steps);
         let mut g = vec![0.0; state.x.len()];
         self.gradient(&frame, &state.x, &steps, &mut g);
         Ok((energy, g))

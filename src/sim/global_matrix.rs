@@ -132,8 +132,8 @@ impl GlobalMatrix {
     pub fn solve_in_place(&self, b: &mut [f64], scratch: &mut SolveScratch) {
         debug_assert_eq!(b.len(), 3 * self.n);
         for (v, p) in b.chunks_exact(3).enumerate() {
-            for c in 0..3 {
-                scratch.rhs[(v, c)] = p[c];
+            for (c, &value) in p.iter().enumerate() {
+                scratch.rhs[(v, c)] = value;
             }
         }
         let llt = LltRef::new(&self.symbolic, &self.l_values);
@@ -144,8 +144,8 @@ impl GlobalMatrix {
             MemStack::new(&mut scratch.stack),
         );
         for (v, p) in b.chunks_exact_mut(3).enumerate() {
-            for c in 0..3 {
-                p[c] = scratch.rhs[(v, c)];
+            for (c, value) in p.iter_mut().enumerate() {
+                *value = scratch.rhs[(v, c)];
             }
         }
     }

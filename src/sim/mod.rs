@@ -19,3 +19,6 @@ pub use attachment::{Attachments, Bone, BonePose, RigidMotion};
 pub use simulator::{SimConfig, SimError, SimState, Simulator};
 pub use solver::{Quality, SolveSettings, SolveStats, Termination};
 pub use tensor::SymTensor;
+
+#[cfg(test)]
+mod tests;

@@ -77,7 +77,7 @@ pub fn newton_rotation(
             // Far from the optimum: Newton's quadratic model is not to be trusted.
             return None;
         }
-        q = q * exp_map(&w);
+        q *= exp_map(&w);
         if angle <= NEWTON_LAST_STEP {
             // Quadratic convergence: what is left after this step is about angle² (round-off).
             return Some((q, step + 1));

@@ -12,12 +12,14 @@ use super::polar::{PolarDerivative, closest_rotation};
 use super::tensor::SymTensor;
 
 /// Value and stress of one element after its local (rotation) step.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, Default)]
 pub struct LocalStep {
     pub rotation: UnitQuaternion<f64>,
     /// `∂E/∂F = w·V·(F − R*·A)`.
     pub stress: Matrix3<f64>,
     pub energy: f64,
+    /// `det F`: the element's volume ratio (≤ 0 means inverted).
+    pub volume_ratio: f64,
 }
 
 /// The local step: best rotation (warm-started from `guess`), energy and stress.
@@ -34,6 +36,7 @@ pub fn local_step(
         rotation,
         stress: diff * wv,
         energy: 0.5 * wv * diff.norm_squared(),
+        volume_ratio: f.determinant(),
     }
 }
 

@@ -97,6 +97,10 @@ pub struct SimState {
     pub(crate) x: Vec<f64>,
     /// Per-element local-step results at `x` (rotations warm-start the next local step).
     pub(crate) steps: Vec<LocalStep>,
+    /// The solver's curvature memory from the last solve (L-BFGS pairs), reused as a warm start.
+    pub(crate) history: Option<super::solver::History>,
+    /// Trial buffer for the line search, kept so solves do not reallocate it.
+    pub(crate) spare: Vec<LocalStep>,
 }
 
 impl SimState {
@@ -256,10 +260,13 @@ impl Simulator {
             rotation: UnitQuaternion::identity(),
             stress: Matrix3::zeros(),
             energy: 0.0,
+            volume_ratio: 1.0,
         };
         SimState {
             x,
             steps: vec![step; self.element_count()],
+            history: None,
+            spare: Vec::new(),
         }
     }
 
@@ -341,13 +348,14 @@ impl Simulator {
         self.ops[element].deformation_gradient(&self.corners(x, element))
     }
 
-    /// The local step for every element at `x` (parallel), warm-started from `warm`.
+    /// The local step for every element at `x` (parallel), warm-started from the rotations
+    /// in `warm`, or from those already in `out` (an in-place update).
     /// Returns the total energy, attachments included.
     pub(crate) fn local_sweep(
         &self,
         frame: &Frame,
         x: &[f64],
-        warm: &[LocalStep],
+        warm: Option<&[LocalStep]>,
         out: &mut [LocalStep],
     ) -> f64 {
         out.par_chunks_mut(CHUNK)
@@ -356,12 +364,8 @@ impl Simulator {
                 for (j, step) in steps.iter_mut().enumerate() {
                     let e = chunk * CHUNK + j;
                     let f = self.deformation_gradient(x, e);
-                    *step = local_step(
-                        &f,
-                        &frame.actuations[e],
-                        self.element_weights[e],
-                        &warm[e].rotation,
-                    );
+                    let guess = warm.map_or(step.rotation, |w| w[e].rotation);
+                    *step = local_step(&f, &frame.actuations[e], self.element_weights[e], &guess);
                 }
             });
         // Summed in a fixed order so results do not depend on thread scheduling.
@@ -424,19 +428,18 @@ impl Simulator {
             });
     }
 
-    /// Per-element linearizations at a state, for Hessian products.
+    /// Per-element linearizations at a state, for Hessian products. The rotations are
+    /// re-derived for these actuations (warm-started from the state's), so a state solved
+    /// under other inputs still gives the exact Hessian.
     pub(crate) fn linearize(&self, frame: &Frame, state: &SimState) -> Vec<Linearized> {
         (0..self.element_count())
             .into_par_iter()
             .with_min_len(CHUNK)
             .map(|e| {
                 let f = self.deformation_gradient(&state.x, e);
-                Linearized::new(
-                    &f,
-                    &frame.actuations[e],
-                    self.element_weights[e],
-                    &state.steps[e].rotation,
-                )
+                let (a, wv) = (&frame.actuations[e], self.element_weights[e]);
+                let step = local_step(&f, a, wv, &state.steps[e].rotation);
+                Linearized::new(&f, a, wv, &step.rotation)
             })
             .collect()
     }
@@ -453,16 +456,6 @@ impl Simulator {
             |e, corner| stress[e] * self.ops[e].grads[corner],
             |i| Vector3::new(v[3 * i], v[3 * i + 1], v[3 * i + 2]) * self.stiffness[i],
         );
-    }
-
-    /// Elements with `det F ≤ 0` at `x`: (count, first).
-    pub(crate) fn inverted_elements(&self, x: &[f64]) -> (usize, usize) {
-        let inverted: Vec<usize> = (0..self.element_count())
-            .into_par_iter()
-            .with_min_len(CHUNK)
-            .filter(|&e| !(self.deformation_gradient(x, e).determinant() > 0.0))
-            .collect();
-        (inverted.len(), inverted.first().copied().unwrap_or(0))
     }
 
     /// `sqrt(Σₑ Σᵢ ‖w·Vₑ·Aₑ·gᵢ‖²)`: the size of the element forces in play, against which
@@ -519,11 +512,9 @@ fn unattached_component(mesh: &TetMesh, attached: &[bool]) -> Option<usize> {
         }
     }
     let mut root_attached = vec![false; n];
-    for v in 0..n {
-        if attached[v] {
-            let r = find(&mut parent, v);
-            root_attached[r] = true;
-        }
+    for (v, _) in attached.iter().enumerate().filter(|(_, a)| **a) {
+        let r = find(&mut parent, v);
+        root_attached[r] = true;
     }
     // An unreferenced vertex is its own part: it needs an attachment too.
     (0..n).find(|&v| !root_attached[find(&mut parent, v)])

@@ -128,6 +128,9 @@ pub struct SolveStats {
     /// the rest of `wall_time` is gradients, L-BFGS vector work and setup.
     pub local_time: Duration,
     pub global_time: Duration,
+    /// Time in the iteration loop (no setup or final checks): `iteration_time / iterations`
+    /// is the cost of one iteration.
+    pub iteration_time: Duration,
 }
 
 impl SolveStats {
@@ -144,8 +147,11 @@ const MAX_BACKTRACKS: usize = 40;
 /// the strength of its gradient alone.
 const ROUND_OFF: f64 = 1e-13;
 
-/// Ring buffer of the last `m` curvature pairs `(s, y)`.
-struct History {
+/// Ring buffer of the last `m` curvature pairs `(s, y)`. It lives in the [`SimState`], so the
+/// next frame's solve starts with the curvature learned on this one: after a small input
+/// change the Hessian has barely moved, and the first steps are already quasi-Newton steps.
+#[derive(Clone, Debug)]
+pub(crate) struct History {
     s: Vec<Vec<f64>>,
     y: Vec<Vec<f64>>,
     rho: Vec<f64>,
@@ -168,6 +174,10 @@ impl History {
 
     fn capacity(&self) -> usize {
         self.s.len()
+    }
+
+    fn dimension(&self) -> usize {
+        self.s.first().map_or(0, Vec::len)
     }
 
     fn clear(&mut self) {
@@ -252,26 +262,27 @@ impl Simulator {
         let dim = state.x.len();
         let scale = self.force_scale(&frame);
 
-        let mut steps = vec![
-            LocalStep {
-                rotation: Default::default(),
-                stress: Default::default(),
-                energy: 0.0
-            };
-            self.element_count()
-        ];
-        let mut trial_steps = steps.clone();
-        let mut energy = self.local_sweep(&frame, &state.x, &state.steps, &mut steps);
+        // Per-element buffers live in the state: the current one is updated in place (its
+        // rotations are the warm start), the spare one takes line-search trials.
+        let mut steps = std::mem::take(&mut state.steps);
+        let mut trial_steps = std::mem::take(&mut state.spare);
+        trial_steps.resize(steps.len(), LocalStep::default());
+        let mut energy = self.local_sweep(&frame, &state.x, None, &mut steps);
         let mut g = vec![0.0; dim];
         self.gradient(&frame, &state.x, &steps, &mut g);
         let mut residual = norm(&g) / scale;
         if !energy.is_finite() || !residual.is_finite() {
+            state.steps = steps;
+            state.spare = trial_steps;
             return Err(SimError::NonFiniteState(0));
         }
         let initial_residual = residual;
         let mut energy_history = vec![energy];
 
-        let mut history = History::new(settings.history, dim);
+        let mut history = match state.history.take() {
+            Some(h) if h.capacity() == settings.history && h.dimension() == dim => h,
+            _ => History::new(settings.history, dim),
+        };
         let mut scratch = self.solve_scratch();
         let mut d = vec![0.0; dim];
         let mut x_trial = vec![0.0; dim];
@@ -282,6 +293,7 @@ impl Simulator {
         let mut global_time = Duration::ZERO;
         let mut termination = Termination::IterationCap;
 
+        let loop_start = Instant::now();
         while residual > settings.tolerance {
             if iterations == settings.max_iterations {
                 break;
@@ -301,7 +313,7 @@ impl Simulator {
                     x_trial[i] = state.x[i] + alpha * d[i];
                 }
                 let sweep_start = Instant::now();
-                let e = self.local_sweep(&frame, &x_trial, &steps, &mut trial_steps);
+                let e = self.local_sweep(&frame, &x_trial, Some(&steps), &mut trial_steps);
                 local_time += sweep_start.elapsed();
                 evaluations += 1;
                 if e.is_finite() {
@@ -336,10 +348,16 @@ impl Simulator {
             iterations += 1;
             energy_history.push(energy);
         }
+        let iteration_time = loop_start.elapsed();
         if residual <= settings.tolerance {
             termination = Termination::Converged;
         }
+        let inverted: Vec<usize> = (0..steps.len())
+            .filter(|&e| !(steps[e].volume_ratio > 0.0))
+            .collect();
         state.steps = steps;
+        state.spare = trial_steps;
+        state.history = Some(history);
         let stats = SolveStats {
             iterations,
             evaluations,
@@ -351,11 +369,11 @@ impl Simulator {
             wall_time: start.elapsed(),
             local_time,
             global_time,
+            iteration_time,
         };
-        let (count, first) = self.inverted_elements(&state.x);
-        if count > 0 {
+        if let Some(&first) = inverted.first() {
             return Err(SimError::Inverted {
-                count,
+                count: inverted.len(),
                 first,
                 stats: Box::new(stats),
             });

@@ -81,8 +81,8 @@ mod tests {
         // f(A) = <G, A> changes by G_01 + G_10 when the stored xy value grows by one.
         let g = Matrix3::new(1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0);
         let grad = SymTensor::gradient_from_matrix(&g);
-        for k in 0..6 {
-            assert_eq!(grad[k], g.component_mul(&SymTensor::basis(k)).sum());
+        for (k, value) in grad.iter().enumerate() {
+            assert_eq!(*value, g.component_mul(&SymTensor::basis(k)).sum());
         }
     }
 
