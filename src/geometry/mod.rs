@@ -1,6 +1,8 @@
 //! Geometry: tetrahedral meshes and generated test meshes.
 
 pub mod generate;
+pub mod remesh;
+pub mod shell;
 pub mod tet_mesh;
 
 pub use tet_mesh::{MeshError, TetMesh};
