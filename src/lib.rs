@@ -8,5 +8,6 @@
 
 pub mod bench;
 pub mod geometry;
+pub mod model;
 pub mod scene;
 pub mod sim;

@@ -1,0 +1,3 @@
+//! Face models and the files they live in.
+
+pub mod file;
