@@ -5,5 +5,6 @@
 
 pub mod bench;
 pub mod geometry;
+pub mod rig;
 pub mod scene;
 pub mod sim;
