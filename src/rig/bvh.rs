@@ -18,11 +18,12 @@ pub struct Box3 {
 }
 
 impl Box3 {
-    /// The smallest box holding `points`, grown by `margin` on every side.
+    /// The smallest box holding `points`, grown by `margin` on every side (an empty, inverted
+    /// box for no points).
     pub fn around(points: &[Point3<f64>], margin: f64) -> Self {
-        let mut min = points[0];
-        let mut max = points[0];
-        for p in &points[1..] {
+        let mut min = Point3::new(f64::INFINITY, f64::INFINITY, f64::INFINITY);
+        let mut max = -min;
+        for p in points {
             min = min.inf(p);
             max = max.sup(p);
         }

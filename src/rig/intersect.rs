@@ -8,8 +8,10 @@
 //! `sign O(a,b,c,p) ≠ sign O(a,b,c,q)` and `sign O(p,q,a,b) = sign O(p,q,b,c) = sign O(p,q,c,a)`,
 //!
 //! with `O(a,b,c,d) = (a − d)·((b − d) × (c − d))` (six times the signed volume of `abcd`),
-//! evaluated in f64 (not exact arithmetic: "exact enough" for cm-scale meshes with
-//! millimetre edges, where the rounding error is ~1e-15 cm³ against volumes of ~1e-6 cm³).
+//! evaluated in f64 — not exact arithmetic, but "exact enough": the rounding error is ~1e-16
+//! of the products of coordinate differences (≲ 1e-18 cm³ for the rig's millimetre-scale lip
+//! elements), far below the volumes that decide real crossings; exact zeros are handled by
+//! the tie rules below.
 //!
 //! Ties (a determinant exactly 0, e.g. mirror-symmetric vertices on the x = 0 plane) are
 //! decided by a fixed rule, equivalent to an infinitesimal perturbation:

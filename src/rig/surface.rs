@@ -32,6 +32,9 @@ pub struct SurfaceTopology {
 impl SurfaceTopology {
     /// The surface made of the faces `face_ranges` of `faces` (e.g. the face ranges of some
     /// regions), with the chosen edge set.
+    ///
+    /// # Panics
+    /// If a range reaches past `faces.len()`.
     pub fn from_faces(
         faces: &Polygons,
         face_ranges: impl IntoIterator<Item = std::ops::Range<usize>>,
@@ -43,7 +46,7 @@ impl SurfaceTopology {
         for range in face_ranges {
             for f in range {
                 let poly = faces.get(f);
-                for k in 1..poly.len() - 1 {
+                for k in 1..poly.len().saturating_sub(1) {
                     triangles.push([poly[0], poly[k], poly[k + 1]]);
                     source_faces.push(f as u32);
                 }
