@@ -9,5 +9,6 @@
 pub mod bench;
 pub mod geometry;
 pub mod model;
+pub mod rig;
 pub mod scene;
 pub mod sim;
