@@ -26,10 +26,17 @@ pub struct Embedding {
 impl Embedding {
     /// Embeds `points` in `mesh`.
     pub fn new(mesh: &TetMesh, points: &[Point3<f64>]) -> Self {
-        let boxes: Vec<Box3> = mesh.tets.iter().map(|t| Box3::around(&t.map(|v| mesh.vertices[v as usize]), 0.0)).collect();
+        let boxes: Vec<Box3> = mesh
+            .tets
+            .iter()
+            .map(|t| Box3::around(&t.map(|v| mesh.vertices[v as usize]), 0.0))
+            .collect();
         let tree = BoxTree::new(&boxes);
         let start_radius = 0.1 * mesh.diameter() / (mesh.element_count() as f64).cbrt().max(1.0);
-        let located: Vec<(u32, [f64; 4], f64)> = points.par_iter().map(|p| locate(mesh, &tree, p, start_radius)).collect();
+        let located: Vec<(u32, [f64; 4], f64)> = points
+            .par_iter()
+            .map(|p| locate(mesh, &tree, p, start_radius))
+            .collect();
         Self {
             elements: located.iter().map(|l| l.0).collect(),
             weights: located.iter().map(|l| l.1).collect(),
@@ -65,7 +72,11 @@ impl Embedding {
 /// Barycentric coordinates of `p` in tetrahedron `t` (unclamped).
 pub fn barycentric(mesh: &TetMesh, t: usize, p: &Point3<f64>) -> [f64; 4] {
     let x0 = mesh.vertices[mesh.tets[t][0] as usize];
-    let l = mesh.edge_matrix(t).try_inverse().map(|inv| inv * (p - x0)).unwrap_or_else(Vector3::zeros);
+    let l = mesh
+        .edge_matrix(t)
+        .try_inverse()
+        .map(|inv| inv * (p - x0))
+        .unwrap_or_else(Vector3::zeros);
     [1.0 - l.x - l.y - l.z, l.x, l.y, l.z]
 }
 
@@ -84,7 +95,12 @@ fn distance_to_tet(mesh: &TetMesh, t: usize, p: &Point3<f64>) -> f64 {
 
 /// The containing (or else nearest) element of `p`: searches boxes of growing radius until a
 /// candidate is found, then once more out to that candidate's distance so none closer is missed.
-fn locate(mesh: &TetMesh, tree: &BoxTree, p: &Point3<f64>, start_radius: f64) -> (u32, [f64; 4], f64) {
+fn locate(
+    mesh: &TetMesh,
+    tree: &BoxTree,
+    p: &Point3<f64>,
+    start_radius: f64,
+) -> (u32, [f64; 4], f64) {
     let mut radius = start_radius;
     let mut candidates = Vec::new();
     let limit = mesh.diameter() * 4.0 + start_radius;
@@ -119,9 +135,9 @@ mod tests {
     fn points_are_reproduced_at_rest_and_follow_an_affine_motion() {
         let mesh = box_mesh([3, 3, 2], Vector3::new(3.0, 3.0, 2.0), 0.2, 4).unwrap();
         let points = vec![
-            Point3::new(1.2, 0.7, 0.4),  // inside
-            Point3::new(2.999, 1.5, 1.0), // on the boundary
-            Point3::new(1.5, 1.5, 2.3),  // 0.3 above the top
+            Point3::new(1.2, 0.7, 0.4),    // inside
+            Point3::new(2.999, 1.5, 1.0),  // on the boundary
+            Point3::new(1.5, 1.5, 2.3),    // 0.3 above the top
             Point3::new(-0.5, -0.5, -0.5), // outside a corner
         ];
         let embedding = Embedding::new(&mesh, &points);
@@ -135,10 +151,14 @@ mod tests {
         // Any affine motion of the mesh moves embedded points by the same motion, exactly.
         let a = nalgebra::Matrix3::new(1.1, 0.2, 0.0, -0.1, 0.9, 0.3, 0.0, 0.1, 1.2);
         let t = Vector3::new(0.5, -1.0, 2.0);
-        let moved: Vec<f64> = mesh.vertices.iter().flat_map(|p| {
-            let q = a * p.coords + t;
-            [q.x, q.y, q.z]
-        }).collect();
+        let moved: Vec<f64> = mesh
+            .vertices
+            .iter()
+            .flat_map(|p| {
+                let q = a * p.coords + t;
+                [q.x, q.y, q.z]
+            })
+            .collect();
         for (p, q) in points.iter().zip(embedding.apply(&mesh.tets, &moved)) {
             assert!((a * p.coords + t - q.coords).norm() < 1e-12);
         }

@@ -1,5 +1,8 @@
 //! Geometry: tetrahedral meshes and generated test meshes.
 
+pub mod bvh;
+pub mod distance;
+pub mod embedding;
 pub mod generate;
 pub mod remesh;
 pub mod shell;

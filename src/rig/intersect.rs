@@ -27,8 +27,8 @@
 use nalgebra::Point3;
 use rayon::prelude::*;
 
-use super::bvh::{Box3, BoxTree};
 use super::surface::SurfaceTopology;
+use crate::geometry::bvh::{Box3, BoxTree};
 
 /// `O(a,b,c,d) = (a − d)·((b − d) × (c − d))`: six times the signed volume of the
 /// tetrahedron `abcd` (cm³); positive when `d` lies on the side of plane `abc` opposite to its

@@ -10,13 +10,11 @@
 //! - [`face_rig`]: [`FaceRig::load`], validation, [`FaceRig::pose`].
 //! - [`jaw`]: rigid fit of the lower teeth (the jaw transform of a pose) and the jaw pivot.
 //! - [`surface`]: triangle surfaces made of rig regions (pose-independent topology).
-//! - [`bvh`], [`intersect`], [`gap`]: broad phase, edge–triangle self-intersections and the
-//!   minimum gap between non-adjacent parts of a surface.
+//! - [`intersect`], [`gap`]: edge–triangle self-intersections and the minimum gap between non-adjacent parts of a surface.
 //! - [`repair`]: removing the rest-pose self-intersections with the smallest vertex motion.
 //!
 //! Units are centimetres throughout; +y up, +z out of the face.
 
-pub mod bvh;
 pub mod expression;
 pub mod face_rig;
 pub mod gap;

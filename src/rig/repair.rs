@@ -27,10 +27,10 @@
 
 use nalgebra::{Point3, Vector3};
 
-use super::bvh::{Box3, BoxTree};
 use super::gap::{GapQuery, GapWitness, close_pairs, closest_point_on_triangle};
 use super::intersect::{self_intersections, vertices_of};
 use super::surface::{Adjacency, SurfaceTopology};
+use crate::geometry::bvh::{Box3, BoxTree};
 
 /// How to repair.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -397,14 +397,14 @@ fn working_part(
 }
 
 /// Closest points of segments `p1q1` and `p2q2` (same clamping as
-/// [`segment_segment_distance`](super::gap::segment_segment_distance)).
+/// [`segment_segment_distance`](crate::geometry::distance::segment_segment_distance)).
 fn closest_points(
     p1: Point3<f64>,
     q1: Point3<f64>,
     p2: Point3<f64>,
     q2: Point3<f64>,
 ) -> (Point3<f64>, Point3<f64>) {
-    let (s, t) = super::gap::segment_segment_params(&p1, &q1, &p2, &q2);
+    let (s, t) = crate::geometry::distance::segment_segment_params(&p1, &q1, &p2, &q2);
     (p1 + (q1 - p1) * s, p2 + (q2 - p2) * t)
 }
 
