@@ -18,6 +18,21 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Build simulation-ready face models from a blendshape rig laid out like ICT-FaceKit.
+    Import {
+        /// The rig folder (neutral, expression and identity OBJs, vertex_indices.json).
+        #[arg(long, default_value = "../shared/data/ict-facekit")]
+        rig: PathBuf,
+        /// Where to write the models (`<identity>-<lod>.face`).
+        #[arg(long)]
+        out: PathBuf,
+        /// Identities to build: `neutral` (the template face), rig indices, or `all`.
+        #[arg(long, value_delimiter = ',', default_values_t = ["all".to_string()])]
+        identities: Vec<String>,
+        /// Levels of detail.
+        #[arg(long, value_delimiter = ',', default_values_t = [facesim::model::Lod::Coarse])]
+        lod: Vec<facesim::model::Lod>,
+    },
     /// Measure performance (results are medians of repeated runs).
     Bench {
         #[command(subcommand)]
@@ -44,6 +59,12 @@ enum BenchTarget {
 
 fn main() -> Result<()> {
     match Cli::parse().command {
+        Command::Import {
+            rig,
+            out,
+            identities,
+            lod,
+        } => import(&rig, &out, &identities, &lod)?,
         Command::Bench {
             target:
                 BenchTarget::Solver {
@@ -65,6 +86,83 @@ fn main() -> Result<()> {
                 std::fs::write(&path, serde_json::to_string_pretty(&rows)?)
                     .with_context(|| format!("writing {}", path.display()))?;
             }
+        }
+    }
+    Ok(())
+}
+
+/// `facesim import`: loads and validates the rig, builds each identity at each level of
+/// detail, writes the models and prints what the importer did.
+fn import(
+    rig_dir: &std::path::Path,
+    out: &std::path::Path,
+    identities: &[String],
+    lods: &[facesim::model::Lod],
+) -> Result<()> {
+    use facesim::model::build_face;
+    eprintln!("loading the rig from {}…", rig_dir.display());
+    let rig = facesim::rig::FaceRig::load_with_progress(rig_dir, &|p| {
+        eprint!("\r  {}/{} {}\x1b[K", p.done, p.total, p.file.display())
+    })
+    .with_context(|| format!("loading the rig from {}", rig_dir.display()))?;
+    eprintln!(
+        "\r  loaded {} shapes and {} identities in {:.2} s\x1b[K",
+        rig.shape_names().len(),
+        rig.identity_count(),
+        rig.load_time().as_secs_f64()
+    );
+    let mut chosen: Vec<Option<usize>> = Vec::new();
+    for id in identities {
+        match id.as_str() {
+            "all" => {
+                chosen.extend(std::iter::once(None).chain((0..rig.identity_count()).map(Some)))
+            }
+            "neutral" => chosen.push(None),
+            n => {
+                let i: usize = n
+                    .parse()
+                    .with_context(|| format!("identity '{n}' is not neutral, all or a number"))?;
+                anyhow::ensure!(
+                    i < rig.identity_count(),
+                    "identity {i} is not in the rig ({} identities)",
+                    rig.identity_count()
+                );
+                chosen.push(Some(i));
+            }
+        }
+    }
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    println!(
+        "| model | elements | vertices | min dihedral | min quality | thickness (min/median/max cm) | skull/jaw attached | repaired (pairs → 0, vertices, max cm) | seconds |"
+    );
+    println!("|---|---:|---:|---:|---:|---|---|---|---:|");
+    for lod in lods {
+        for &identity in &chosen {
+            let label = identity.map_or("neutral".to_string(), |i| format!("identity{i:03}"));
+            eprintln!("building {label} at {} detail…", lod.name());
+            let model = build_face(&rig, identity, &lod.settings())
+                .with_context(|| format!("building {label}"))?;
+            let path = out.join(format!("{label}-{}.face", lod.name()));
+            model.save(&path)?;
+            let (q, r) = (&model.quality, &model.report);
+            println!(
+                "| {label}-{} | {} | {} | {:.1}° | {:.3} | {:.2}/{:.2}/{:.2} | {}/{} | {} → {}, {}, {:.3} | {:.1} |",
+                lod.name(),
+                q.elements,
+                q.vertices,
+                q.min_dihedral_deg,
+                q.min_shape_quality,
+                r.thickness_min,
+                r.thickness_median,
+                r.thickness_max,
+                r.skull_attached,
+                r.jaw_attached,
+                r.intersections_before_repair,
+                r.intersections_after_repair,
+                r.repaired_vertices,
+                r.max_repair_displacement,
+                r.seconds
+            );
         }
     }
     Ok(())

@@ -1,0 +1,845 @@
+//! The importer: from a blendshape rig to a simulation-ready [`FaceModel`] for one identity.
+//!
+//! ```text
+//! rest face ─► repair lip intersections ─► remesh the skin (edge length = level of detail)
+//!   ─► inward directions + tissue thickness (rays to the mouth, teeth and far skin)
+//!   ─► prism layers → tetrahedra (thinned where they would fold)
+//!   ─► attachments: the inner layer under skin that no lower-face shape moves → skull,
+//!      under skin that moves with the lower teeth → jaw
+//!   ─► render surface: skin and inner mouth embedded; teeth, gums and the deep mouth on bones
+//! ```
+
+use std::time::Instant;
+
+use nalgebra::{Point3, Vector3};
+use serde::{Deserialize, Serialize};
+
+use super::face::{Binding, FaceModel, RenderSurface};
+use crate::geometry::embedding::Embedding;
+use crate::geometry::query::TriangleIndex;
+use crate::geometry::remesh::{RemeshSettings, Surface, min_angles, remesh};
+use crate::geometry::shell::{ShellError, extrude, quality, smooth_directions, vertex_normals};
+use crate::rig::jaw::{estimate_pivot, fit_rigid};
+use crate::rig::repair::{RepairSettings, repair_self_intersections};
+use crate::rig::surface::{EdgeSet, SurfaceTopology};
+use crate::rig::{ExpressionCode, FaceRig, Region};
+use crate::sim::{Attachments, Bone, BonePose};
+
+/// Levels of detail of the simulation mesh.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Lod {
+    /// About 5k elements: interactive on any machine.
+    Coarse,
+    /// About 20k elements.
+    Medium,
+    /// About 80k elements.
+    Fine,
+}
+
+impl Lod {
+    pub const ALL: [Lod; 3] = [Lod::Coarse, Lod::Medium, Lod::Fine];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Lod::Coarse => "coarse",
+            Lod::Medium => "medium",
+            Lod::Fine => "fine",
+        }
+    }
+
+    pub fn settings(self) -> BuildSettings {
+        let (edge_length, layers) = match self {
+            Lod::Coarse => (1.25, 2),
+            Lod::Medium => (0.62, 2),
+            Lod::Fine => (0.38, 3),
+        };
+        BuildSettings {
+            edge_length,
+            layers,
+            ..BuildSettings::default()
+        }
+    }
+}
+
+impl std::fmt::Display for Lod {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl std::str::FromStr for Lod {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Lod::ALL
+            .into_iter()
+            .find(|l| l.name() == s)
+            .ok_or_else(|| format!("unknown level of detail '{s}' (coarse, medium or fine)"))
+    }
+}
+
+/// Knobs of the importer (cm).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct BuildSettings {
+    /// Target edge length of the simulation skin.
+    pub edge_length: f64,
+    /// Prism layers through the tissue.
+    pub layers: usize,
+    /// Tissue thickness where nothing is closer (forehead, cheeks over bone).
+    pub max_thickness: f64,
+    /// Thinnest tissue allowed, as a fraction of the edge length (lip edges, nostrils).
+    pub min_thickness_ratio: f64,
+    /// A surface vertex moved less than this by every default expression shape is on bone.
+    pub skull_motion: f64,
+    /// A surface vertex is on the jaw where jawOpen moves it like the lower teeth, to within
+    /// this fraction of the teeth's motion there.
+    pub jaw_match: f64,
+    /// Inner-mouth vertices farther than this from the tissue follow a bone instead.
+    pub embed_distance: f64,
+    /// Rings of skin around the moving region that are simulated too (and pinned at their
+    /// outer border), so the moving skin blends into the skin that rides on the skull.
+    pub margin_rings: usize,
+}
+
+impl Default for BuildSettings {
+    fn default() -> Self {
+        Self {
+            edge_length: 0.62,
+            layers: 2,
+            max_thickness: 1.2,
+            min_thickness_ratio: 0.3,
+            skull_motion: 0.05,
+            jaw_match: 0.25,
+            embed_distance: 0.3,
+            margin_rings: 2,
+        }
+    }
+}
+
+/// What the importer did and measured, for the user and the README.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct BuildReport {
+    pub intersections_before_repair: usize,
+    pub intersections_after_repair: usize,
+    pub repaired_vertices: usize,
+    pub max_repair_displacement: f64,
+    pub skin_vertices: usize,
+    pub skin_triangles: usize,
+    /// Smallest angle of any simulation skin triangle, degrees.
+    pub skin_min_angle_deg: f64,
+    /// Skin triangles left out of the tissue layer because it cannot be extruded there (the
+    /// surface folds back on itself).
+    pub dropped_triangles: usize,
+    /// Thinning rounds needed so that no prism folds.
+    pub thinning_rounds: usize,
+    pub thickness_min: f64,
+    pub thickness_median: f64,
+    pub thickness_max: f64,
+    pub skull_attached: usize,
+    pub jaw_attached: usize,
+    pub jaw_pivot_rms_motion: f64,
+    /// Rigid fit error of the lower teeth under jawOpen (cm).
+    pub jaw_fit_rms: f64,
+    pub embedded_vertices: usize,
+    pub rigid_vertices: usize,
+    /// Largest distance of an embedded render vertex outside the tissue (cm).
+    pub max_embed_distance: f64,
+    pub seconds: f64,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum BuildError {
+    #[error("identity {0} is not in the rig ({1} identities)")]
+    NoSuchIdentity(usize, usize),
+    #[error("repairing the rest face: {0}")]
+    Repair(#[from] crate::rig::repair::RepairError),
+    #[error("estimating the jaw: {0}")]
+    Jaw(#[from] crate::rig::jaw::JawError),
+    #[error("building the tissue layer: {0}")]
+    Shell(#[from] ShellError),
+    #[error("the tissue layer still folds under {0} triangles after thinning")]
+    StillFolded(usize),
+    #[error("the simulation mesh is unusable: {0}")]
+    Simulator(#[from] crate::sim::SimError),
+}
+
+/// Builds the simulation model of `identity` (`None`: the neutral, i.e. the template face).
+pub fn build_face(
+    rig: &FaceRig,
+    identity: Option<usize>,
+    settings: &BuildSettings,
+) -> Result<FaceModel, BuildError> {
+    let start = Instant::now();
+    if let Some(i) = identity
+        && i >= rig.identity_count()
+    {
+        return Err(BuildError::NoSuchIdentity(i, rig.identity_count()));
+    }
+    let mut report = BuildReport::default();
+    let faces = rig.faces();
+    let skin = SurfaceTopology::from_regions(faces, &[Region::FaceSkin], EdgeSet::Triangle);
+    let d_hat = 1e-3 * skin.diameter(rig.base(identity));
+
+    // 1. An intersection-free rest face.
+    let (rest, repair) =
+        repair_self_intersections(rig.base(identity), &skin, &RepairSettings::new(d_hat))?;
+    report.intersections_before_repair = repair.intersections_before;
+    report.intersections_after_repair = repair.intersections_after;
+    report.repaired_vertices = repair.moved_vertices.len();
+    report.max_repair_displacement = repair.max_displacement;
+
+    // 2. The simulation skin: remeshed to the level of detail, projected onto the real skin.
+    let skin_index = TriangleIndex::new(&rest, &skin.triangles);
+    let remeshed = remesh(
+        &Surface {
+            vertices: rest.clone(),
+            triangles: skin.triangles.clone(),
+        },
+        RemeshSettings {
+            edge_length: settings.edge_length,
+            iterations: 6,
+        },
+        &|p| skin_index.closest_point(p).map_or(*p, |(q, _)| q),
+    );
+
+    // 3. Only the skin that the expression shapes move (and a margin, pinned to the skull)
+    //    gets tissue: the rest of the face rides on the skull.
+    let pivot = estimate_pivot(rig, identity)?;
+    report.jaw_pivot_rms_motion = pivot.rms_pivot_motion;
+    let motion = BoneMotion::new(rig, identity, pivot.pivot, settings)?;
+    report.jaw_fit_rms = motion.jaw_fit_rms;
+    let origin: Vec<usize> = remeshed
+        .vertices
+        .iter()
+        .map(|p| nearest_rig_vertex(&skin_index, &rest, &skin, p))
+        .collect();
+    let mut active: Vec<bool> = origin
+        .iter()
+        .map(|&v| motion.max_motion[v] >= settings.skull_motion)
+        .collect();
+    for _ in 0..settings.margin_rings {
+        let mut grown = active.clone();
+        for t in &remeshed.triangles {
+            if t.iter().any(|&v| active[v as usize]) {
+                for &v in t {
+                    grown[v as usize] = true;
+                }
+            }
+        }
+        active = grown;
+    }
+    let cropped: Vec<[u32; 3]> = remeshed
+        .triangles
+        .iter()
+        .copied()
+        .filter(|t| t.iter().all(|&v| active[v as usize]))
+        .collect();
+
+    // 4. Where the tissue goes and how deep.
+    let (positions, mut triangles) = (remeshed.vertices, cropped);
+    let inward: Vec<Vector3<f64>> =
+        smooth_directions(&vertex_normals(&positions, &triangles), &triangles, 3)
+            .iter()
+            .map(|n| -n)
+            .collect();
+    let before = triangles.len();
+    triangles.retain(|t| {
+        let p = t.map(|v| positions[v as usize]);
+        let n = (p[1] - p[0]).cross(&(p[2] - p[0]));
+        t.iter().all(|&v| n.dot(&inward[v as usize]) < 0.0)
+    });
+    report.dropped_triangles = before - triangles.len();
+    let (positions, mut triangles, inward, kept) = compact(&positions, &triangles, &inward);
+    let origin: Vec<usize> = kept.iter().map(|&v| origin[v]).collect();
+    let mut thickness = tissue_thickness(rig, &rest, &positions, &inward, settings);
+    limit_slope(&positions, &triangles, &mut thickness, MAX_THICKNESS_SLOPE);
+
+    // 5. The tissue layer, thinned where prisms fold or their inner side crowds together
+    //    (never below the minimum thickness); triangles that fold even then are left out.
+    let min_thickness = settings.min_thickness_ratio * settings.edge_length;
+    let thin = |vertices: &mut dyn Iterator<Item = u32>, thickness: &mut [f64]| {
+        for v in vertices {
+            thickness[v as usize] = (thickness[v as usize] * 0.85).max(min_thickness);
+        }
+    };
+    let shell = loop {
+        let rounds_left = report.thinning_rounds < MAX_THINNING_ROUNDS;
+        match extrude(&positions, &triangles, &inward, &thickness, settings.layers) {
+            Ok(shell) => {
+                let crowded: Vec<usize> = (0..triangles.len())
+                    .filter(|&t| {
+                        area_ratio(&shell, &triangles[t]) < MIN_AREA_RATIO
+                            && triangles[t]
+                                .iter()
+                                .any(|&v| thickness[v as usize] > min_thickness)
+                    })
+                    .collect();
+                if crowded.is_empty() || !rounds_left {
+                    break shell;
+                }
+                report.thinning_rounds += 1;
+                thin(
+                    &mut crowded.iter().flat_map(|&t| triangles[t]),
+                    &mut thickness,
+                );
+            }
+            Err(ShellError::Folded(folded)) => {
+                // Folds that thinning cannot undo: leave those triangles out of the layer.
+                let stuck: Vec<usize> = folded
+                    .iter()
+                    .copied()
+                    .filter(|&t| {
+                        !rounds_left
+                            || triangles[t]
+                                .iter()
+                                .all(|&v| thickness[v as usize] <= min_thickness)
+                    })
+                    .collect();
+                if stuck.is_empty() {
+                    report.thinning_rounds += 1;
+                    thin(
+                        &mut folded.iter().flat_map(|&t| triangles[t]),
+                        &mut thickness,
+                    );
+                } else {
+                    report.dropped_triangles += stuck.len();
+                    let mut index = 0;
+                    triangles.retain(|_| {
+                        index += 1;
+                        !stuck.contains(&(index - 1))
+                    });
+                }
+            }
+            Err(e) => return Err(e.into()),
+        }
+    };
+    // Dropped triangles may leave vertices without tissue: compact and extrude once more.
+    let (shell, positions, triangles, thickness, origin) =
+        if shell.mesh.vertex_count() == (shell.layers + 1) * used_count(&triangles) {
+            (shell, positions, triangles, thickness, origin)
+        } else {
+            let (p, t, d, kept) = compact(&positions, &triangles, &inward);
+            let thickness: Vec<f64> = kept.iter().map(|&v| thickness[v]).collect();
+            let origin: Vec<usize> = kept.iter().map(|&v| origin[v]).collect();
+            (
+                extrude(&p, &t, &d, &thickness, settings.layers)?,
+                p,
+                t,
+                thickness,
+                origin,
+            )
+        };
+    let mut sorted = thickness.clone();
+    sorted.sort_by(f64::total_cmp);
+    (
+        report.thickness_min,
+        report.thickness_median,
+        report.thickness_max,
+    ) = (
+        sorted[0],
+        sorted[sorted.len() / 2],
+        sorted[sorted.len() - 1],
+    );
+    report.skin_vertices = positions.len();
+    report.skin_triangles = triangles.len();
+    report.skin_min_angle_deg = min_angles(&Surface {
+        vertices: positions.clone(),
+        triangles: triangles.clone(),
+    })
+    .into_iter()
+    .fold(180.0, f64::min);
+
+    // 6. Attachments: the inner layer under skin that rides on a bone; the whole column at
+    //    the border of the simulated region, where it meets the skin that rides on the skull.
+    let border = border_vertices(&triangles, positions.len());
+    let mut attachments = Attachments::default();
+    for v in 0..positions.len() {
+        let bone = motion
+            .bone_of(origin[v])
+            .or(border[v].then_some(Bone::Skull));
+        if let Some(bone) = bone {
+            let layers: Vec<usize> = if border[v] {
+                (0..=shell.layers).collect()
+            } else {
+                vec![shell.layers]
+            };
+            for l in layers {
+                attachments.vertices.push(shell.vertex(l, v) as u32);
+                attachments.bones.push(bone);
+            }
+        }
+    }
+    report.skull_attached = attachments
+        .bones
+        .iter()
+        .filter(|b| **b == Bone::Skull)
+        .count();
+    report.jaw_attached = attachments
+        .bones
+        .iter()
+        .filter(|b| **b == Bone::Jaw)
+        .count();
+
+    // 7. The artist's surface, bound to the tissue and bones.
+    let render = render_surface(rig, &rest, &shell.mesh, &motion, settings, &mut report);
+    let skin_triangles = triangles;
+    let mesh = shell.mesh;
+    report.seconds = start.elapsed().as_secs_f64();
+    let model = FaceModel {
+        identity,
+        name: identity.map_or_else(
+            || "neutral".to_string(),
+            |i| rig.identity_names()[i].clone(),
+        ),
+        quality: quality(&mesh),
+        mesh,
+        skin_triangles,
+        attachments,
+        jaw_pivot: pivot.pivot,
+        d_hat,
+        render,
+        report,
+    };
+    // The simulator must accept it (every part attached, matrix positive definite).
+    model.simulator()?;
+    Ok(model)
+}
+
+/// Drops unreferenced vertices.
+/// Rounds of thinning before the importer leaves the still-folding triangles out.
+const MAX_THINNING_ROUNDS: usize = 60;
+
+/// Neighbouring prisms may differ in depth by at most this much per unit of distance along
+/// the skin; steeper steps shear the prisms into slivers.
+const MAX_THICKNESS_SLOPE: f64 = 0.5;
+
+/// Lowers `thickness` until `t_v ≤ t_u + slope·‖p_u − p_v‖` along every edge (a one-sided
+/// Lipschitz limit, computed like a distance transform by relaxing edges to a fixed point).
+fn limit_slope(
+    positions: &[Point3<f64>],
+    triangles: &[[u32; 3]],
+    thickness: &mut [f64],
+    slope: f64,
+) {
+    let mut changed = true;
+    while changed {
+        changed = false;
+        for t in triangles {
+            for i in 0..3 {
+                let (a, b) = (t[i] as usize, t[(i + 1) % 3] as usize);
+                let limit = slope * (positions[a] - positions[b]).norm();
+                for (x, y) in [(a, b), (b, a)] {
+                    if thickness[x] > thickness[y] + limit {
+                        thickness[x] = thickness[y] + limit;
+                        changed = true;
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// The inner side of a prism may shrink to this fraction of the skin triangle's area; where
+/// it crowds more (the focal region of a concave spot) the elements come out as slivers.
+const MIN_AREA_RATIO: f64 = 0.4;
+
+/// Signed area of a triangle's innermost copy over its skin area (projected on the skin
+/// normal, so a fold is negative).
+fn area_ratio(shell: &crate::geometry::shell::Shell, t: &[u32; 3]) -> f64 {
+    let normal = |layer: usize| {
+        let p = t.map(|v| shell.mesh.vertices[shell.vertex(layer, v as usize)]);
+        (p[1] - p[0]).cross(&(p[2] - p[0]))
+    };
+    let outer = normal(0);
+    normal(shell.layers).dot(&outer) / outer.norm_squared()
+}
+
+/// Returns the kept vertices' old indices too.
+fn compact(
+    positions: &[Point3<f64>],
+    triangles: &[[u32; 3]],
+    inward: &[Vector3<f64>],
+) -> (
+    Vec<Point3<f64>>,
+    Vec<[u32; 3]>,
+    Vec<Vector3<f64>>,
+    Vec<usize>,
+) {
+    let mut map = vec![u32::MAX; positions.len()];
+    let (mut p, mut d, mut kept) = (Vec::new(), Vec::new(), Vec::new());
+    let triangles = triangles
+        .iter()
+        .map(|t| {
+            t.map(|v| {
+                if map[v as usize] == u32::MAX {
+                    map[v as usize] = p.len() as u32;
+                    p.push(positions[v as usize]);
+                    d.push(inward[v as usize]);
+                    kept.push(v as usize);
+                }
+                map[v as usize]
+            })
+        })
+        .collect();
+    (p, triangles, d, kept)
+}
+
+/// How many distinct vertices the triangles use.
+fn used_count(triangles: &[[u32; 3]]) -> usize {
+    let mut v: Vec<u32> = triangles.iter().flatten().copied().collect();
+    v.sort_unstable();
+    v.dedup();
+    v.len()
+}
+
+/// Vertices on the border of a triangle surface.
+fn border_vertices(triangles: &[[u32; 3]], n: usize) -> Vec<bool> {
+    let mut edges = std::collections::BTreeMap::new();
+    for t in triangles {
+        for i in 0..3 {
+            let (a, b) = (t[i].min(t[(i + 1) % 3]), t[i].max(t[(i + 1) % 3]));
+            *edges.entry((a, b)).or_insert(0) += 1;
+        }
+    }
+    let mut border = vec![false; n];
+    for ((a, b), count) in edges {
+        if count == 1 {
+            border[a as usize] = true;
+            border[b as usize] = true;
+        }
+    }
+    border
+}
+
+/// Tissue thickness under each skin vertex: up to `max_thickness`, stopping just short of the
+/// inner mouth, gums and teeth, and at half the way to skin on the far side (the nose's
+/// other wall); then smoothed so neighbouring prisms are alike.
+fn tissue_thickness(
+    rig: &FaceRig,
+    rest: &[Point3<f64>],
+    positions: &[Point3<f64>],
+    inward: &[Vector3<f64>],
+    settings: &BuildSettings,
+) -> Vec<f64> {
+    let faces = rig.faces();
+    let inner = SurfaceTopology::from_regions(
+        faces,
+        &[
+            Region::MouthSocket,
+            Region::GumsAndTongue,
+            Region::UpperTeeth,
+            Region::LowerTeeth,
+        ],
+        EdgeSet::Triangle,
+    );
+    let skin = SurfaceTopology::from_regions(faces, &[Region::FaceSkin], EdgeSet::Triangle);
+    let (inner, skin) = (
+        TriangleIndex::new(rest, &inner.triangles),
+        TriangleIndex::new(rest, &skin.triangles),
+    );
+    let min = settings.min_thickness_ratio * settings.edge_length;
+    // Skin hits nearer than this are the skin under the vertex itself, not the far side.
+    let self_hit = 0.5 * settings.edge_length;
+    positions
+        .iter()
+        .zip(inward)
+        .map(|(p, d)| {
+            let mut limit = settings.max_thickness;
+            if let Some((s, _)) = inner.first_hit(p, d, 0.0, settings.max_thickness / 0.95) {
+                limit = limit.min(0.95 * s);
+            }
+            if let Some((s, _)) = skin.first_hit(p, d, self_hit, 2.0 * settings.max_thickness) {
+                limit = limit.min(0.5 * s);
+            }
+            limit.max(min)
+        })
+        .collect()
+}
+
+/// Which rig vertices ride on which bone, from how the 19 default shapes move them.
+struct BoneMotion {
+    /// Largest displacement of each rig vertex under any default shape at weight 1 (cm).
+    max_motion: Vec<f64>,
+    /// Each vertex's jawOpen displacement minus the lower teeth's rigid motion there, over
+    /// the latter (0: moves exactly with the jaw).
+    jaw_mismatch: Vec<f64>,
+    jaw_motion: Vec<f64>,
+    jaw_fit_rms: f64,
+    skull_motion: f64,
+    jaw_match: f64,
+}
+
+impl BoneMotion {
+    fn new(
+        rig: &FaceRig,
+        identity: Option<usize>,
+        pivot: Point3<f64>,
+        settings: &BuildSettings,
+    ) -> Result<Self, BuildError> {
+        let base = rig.base(identity);
+        let n = base.len();
+        let mut max_motion = vec![0.0f64; n];
+        for name in ExpressionCode::NAMES {
+            let Some(code) = ExpressionCode::single(name, 1.0) else {
+                continue;
+            };
+            let posed = rig.pose(identity, &code);
+            for v in 0..n {
+                max_motion[v] = max_motion[v].max((posed[v] - base[v]).norm());
+            }
+        }
+        let open = ExpressionCode::single("jawOpen", 1.0)
+            .map(|c| rig.pose(identity, &c))
+            .unwrap_or_else(|| base.to_vec());
+        let teeth = Region::LowerTeeth.vertices();
+        let fit = fit_rigid(&base[teeth.clone()], &open[teeth], &pivot)?;
+        let jaw = BonePose {
+            jaw: fit.motion,
+            ..BonePose::default()
+        };
+        let mut jaw_mismatch = vec![f64::INFINITY; n];
+        let mut jaw_motion = vec![0.0; n];
+        for v in 0..n {
+            let rigid = jaw.target(Bone::Jaw, &pivot, &base[v]) - base[v];
+            jaw_motion[v] = rigid.norm();
+            jaw_mismatch[v] = ((open[v] - base[v]) - rigid).norm() / rigid.norm().max(1e-9);
+        }
+        Ok(Self {
+            max_motion,
+            jaw_mismatch,
+            jaw_motion,
+            jaw_fit_rms: fit.rms_error,
+            skull_motion: settings.skull_motion,
+            jaw_match: settings.jaw_match,
+        })
+    }
+
+    /// The bone under rig vertex `v`, if its skin rides on one.
+    fn bone_of(&self, v: usize) -> Option<Bone> {
+        if self.max_motion[v] < self.skull_motion {
+            Some(Bone::Skull)
+        } else if self.jaw_mismatch[v] < self.jaw_match && self.jaw_motion[v] > 0.5 {
+            Some(Bone::Jaw)
+        } else {
+            None
+        }
+    }
+
+    /// The bone a non-embedded render vertex follows: the jaw if jawOpen moves it like the
+    /// lower teeth, else the skull.
+    fn nearest_bone(&self, v: usize) -> Bone {
+        if self.jaw_mismatch[v] < 0.5 {
+            Bone::Jaw
+        } else {
+            Bone::Skull
+        }
+    }
+}
+
+/// The rig vertex of the skin closest to `p`: the nearest corner of the nearest skin triangle.
+fn nearest_rig_vertex(
+    index: &TriangleIndex,
+    rest: &[Point3<f64>],
+    skin: &SurfaceTopology,
+    p: &Point3<f64>,
+) -> usize {
+    let Some((_, t)) = index.closest_point(p) else {
+        return 0;
+    };
+    skin.triangles[t as usize]
+        .iter()
+        .map(|&v| v as usize)
+        .min_by(|&a, &b| (rest[a] - p).norm().total_cmp(&(rest[b] - p).norm()))
+        .unwrap_or(0)
+}
+
+/// The render surface: skin and inner mouth embedded in the tissue where close to it; teeth,
+/// gums, tongue and the deep mouth rigid with their bone.
+fn render_surface(
+    rig: &FaceRig,
+    rest: &[Point3<f64>],
+    mesh: &crate::geometry::TetMesh,
+    motion: &BoneMotion,
+    settings: &BuildSettings,
+    report: &mut BuildReport,
+) -> RenderSurface {
+    let regions = [
+        Region::FaceSkin,
+        Region::MouthSocket,
+        Region::GumsAndTongue,
+        Region::UpperTeeth,
+        Region::LowerTeeth,
+    ];
+    let surface = SurfaceTopology::from_regions(rig.faces(), &regions, EdgeSet::Triangle);
+    let rig_vertices = surface.vertices();
+    let mut local = vec![u32::MAX; rest.len()];
+    for (i, &v) in rig_vertices.iter().enumerate() {
+        local[v as usize] = i as u32;
+    }
+    let points: Vec<Point3<f64>> = rig_vertices.iter().map(|&v| rest[v as usize]).collect();
+    let embedding = Embedding::new(mesh, &points);
+    let bindings: Vec<Binding> = rig_vertices
+        .iter()
+        .enumerate()
+        .map(|(i, &v)| {
+            let region = Region::of_vertex(v as usize);
+            let soft = matches!(region, Some(Region::FaceSkin) | Some(Region::MouthSocket));
+            if soft
+                && (region == Some(Region::FaceSkin)
+                    || embedding.outside_distance[i] <= settings.embed_distance)
+            {
+                Binding::Embedded {
+                    element: embedding.elements[i],
+                    weights: embedding.weights[i],
+                }
+            } else {
+                match region {
+                    Some(Region::UpperTeeth) => Binding::Rigid(Bone::Skull),
+                    Some(Region::LowerTeeth) => Binding::Rigid(Bone::Jaw),
+                    _ => Binding::Rigid(motion.nearest_bone(v as usize)),
+                }
+            }
+        })
+        .collect();
+    report.embedded_vertices = bindings
+        .iter()
+        .filter(|b| matches!(b, Binding::Embedded { .. }))
+        .count();
+    report.rigid_vertices = bindings.len() - report.embedded_vertices;
+    report.max_embed_distance = bindings
+        .iter()
+        .zip(&embedding.outside_distance)
+        .filter(|(b, _)| matches!(b, Binding::Embedded { .. }))
+        .map(|(_, d)| *d)
+        .fold(0.0, f64::max);
+    let triangles = surface
+        .triangles
+        .iter()
+        .map(|t| t.map(|v| local[v as usize]))
+        .collect();
+    RenderSurface {
+        rig_vertices,
+        rest: points,
+        triangles,
+        bindings,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::rig::test_support::{rig, temp_dir};
+    use crate::sim::{Quality, SymTensor};
+
+    fn neutral_coarse() -> &'static FaceModel {
+        static MODEL: std::sync::OnceLock<FaceModel> = std::sync::OnceLock::new();
+        MODEL.get_or_init(|| build_face(rig(), None, &Lod::Coarse.settings()).unwrap())
+    }
+
+    #[test]
+    fn the_neutral_builds_into_a_valid_intersection_free_model() {
+        let model = neutral_coarse();
+        let (q, r) = (&model.quality, &model.report);
+        assert!(
+            (4_000..6_500).contains(&q.elements),
+            "{} elements",
+            q.elements
+        );
+        assert_eq!(q.inverted, 0);
+        assert_eq!(
+            (r.intersections_before_repair, r.intersections_after_repair),
+            (126, 0)
+        );
+        assert!(r.skull_attached > 0 && r.jaw_attached > 0, "{r:?}");
+        assert!(r.skin_min_angle_deg > 5.0, "{r:?}");
+        assert!(r.thickness_max <= Lod::Coarse.settings().max_thickness + 1e-12);
+        assert!((model.d_hat - 0.029).abs() < 0.001, "d̂ = {}", model.d_hat);
+        // The jaw pivot sits behind and above the lower teeth.
+        let teeth = Region::LowerTeeth.vertices();
+        let centroid = rig().neutral()[teeth.clone()]
+            .iter()
+            .map(|p| p.coords)
+            .sum::<Vector3<f64>>()
+            / teeth.len() as f64;
+        assert!(
+            model.jaw_pivot.z < centroid.z - 3.0 && model.jaw_pivot.y > centroid.y,
+            "{:?}",
+            model.jaw_pivot
+        );
+    }
+
+    #[test]
+    fn identity_actuation_keeps_the_face_at_rest_and_the_render_surface_follows() {
+        let model = neutral_coarse();
+        let sim = model.simulator().unwrap();
+        let mut state = sim.rest_state();
+        let rest = vec![SymTensor::IDENTITY; sim.element_count()];
+        let stats = sim
+            .solve(
+                &rest,
+                &BonePose::default(),
+                &mut state,
+                &Quality::Final.settings(),
+            )
+            .unwrap();
+        assert_eq!(stats.iterations, 0);
+        let render = model.render_positions(state.flat_positions(), &BonePose::default());
+        let worst = render
+            .iter()
+            .zip(&model.render.rest)
+            .map(|(a, b)| (a - b).norm())
+            .fold(0.0, f64::max);
+        assert!(worst < 1e-9, "render surface moved by {worst} cm at rest");
+        // Opening the jaw a little moves the chin down with it and keeps the forehead.
+        let bones = BonePose {
+            jaw: crate::sim::RigidMotion::from_params([0.08, 0.0, 0.0, 0.0, 0.0, 0.0]),
+            ..BonePose::default()
+        };
+        sim.solve(&rest, &bones, &mut state, &Quality::Preview.settings())
+            .unwrap();
+        let moved = model.render_positions(state.flat_positions(), &bones);
+        let chin = model
+            .render
+            .rig_vertices
+            .iter()
+            .position(|&v| v as usize == Region::LowerTeeth.vertices().start)
+            .unwrap();
+        assert!(moved[chin].y < model.render.rest[chin].y - 0.1);
+    }
+
+    #[test]
+    fn models_round_trip_through_files_and_reject_damage() {
+        let model = neutral_coarse();
+        let dir = temp_dir("face-model");
+        let path = dir.join("neutral.face");
+        model.save(&path).unwrap();
+        assert_eq!(&FaceModel::load(&path).unwrap(), model);
+        let mut bytes = std::fs::read(&path).unwrap();
+        let middle = bytes.len() / 2;
+        bytes[middle] ^= 1;
+        std::fs::write(&path, &bytes).unwrap();
+        let err = FaceModel::load(&path).unwrap_err();
+        assert!(err.to_string().contains("corrupt"), "{err}");
+        std::fs::write(&path, &bytes[..100]).unwrap();
+        assert!(
+            FaceModel::load(&path)
+                .unwrap_err()
+                .to_string()
+                .contains("truncated")
+        );
+    }
+
+    #[test]
+    fn identities_get_their_own_meshes() {
+        let a = build_face(rig(), Some(0), &Lod::Coarse.settings()).unwrap();
+        let b = build_face(rig(), Some(7), &Lod::Coarse.settings()).unwrap();
+        assert_ne!(a.mesh.vertices.len(), 0);
+        assert!(a.mesh != b.mesh && a.mesh != neutral_coarse().mesh);
+        assert_eq!(a.report.intersections_after_repair, 0);
+        assert_eq!(b.report.intersections_after_repair, 0);
+        assert!(matches!(
+            build_face(rig(), Some(99), &Lod::Coarse.settings()),
+            Err(BuildError::NoSuchIdentity(99, 10))
+        ));
+    }
+}

@@ -1,0 +1,97 @@
+//! A simulation-ready face: the tissue's tetrahedral mesh, its bone attachments, and the
+//! artist's full-resolution surface bound to it.
+
+use std::path::Path;
+
+use nalgebra::Point3;
+use serde::{Deserialize, Serialize};
+
+use super::build::BuildReport;
+use super::file::{self, FileError, Format};
+use crate::geometry::TetMesh;
+use crate::geometry::shell::MeshQuality;
+use crate::sim::{Attachments, Bone, SimConfig, SimError, Simulator};
+
+/// The file format of face models; bump `version` whenever [`FaceModel`] changes shape.
+pub const FACE_FORMAT: Format = Format {
+    kind: "face",
+    version: 1,
+};
+
+/// How one vertex of the render surface follows the simulation.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub enum Binding {
+    /// Barycentric in a tetrahedron: `p = Σᵢ wᵢ·xᵢ` over its 4 vertices.
+    Embedded { element: u32, weights: [f64; 4] },
+    /// Rigidly with a bone (teeth, gums, the back of the mouth).
+    Rigid(Bone),
+}
+
+/// The artist's surface: a subset of the rig's vertices and the faces among them.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RenderSurface {
+    /// Rig vertex index of each render vertex.
+    pub rig_vertices: Vec<u32>,
+    /// Rest positions (after the importer's repair), cm.
+    pub rest: Vec<Point3<f64>>,
+    /// Triangles over render vertices.
+    pub triangles: Vec<[u32; 3]>,
+    pub bindings: Vec<Binding>,
+}
+
+/// One identity's simulation model.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct FaceModel {
+    /// `None` is the rig's neutral: the canonical (template) face.
+    pub identity: Option<usize>,
+    pub name: String,
+    pub mesh: TetMesh,
+    /// The skin: triangles of the mesh's outer layer (mesh vertex indices).
+    pub skin_triangles: Vec<[u32; 3]>,
+    pub attachments: Attachments,
+    pub jaw_pivot: Point3<f64>,
+    /// Contact distance `d̂ = 0.001 ×` the skin's diameter, cm.
+    pub d_hat: f64,
+    pub render: RenderSurface,
+    pub quality: MeshQuality,
+    pub report: BuildReport,
+}
+
+impl FaceModel {
+    /// A simulator for this face (factors its global matrix).
+    pub fn simulator(&self) -> Result<Simulator, SimError> {
+        let config = SimConfig {
+            jaw_pivot: self.jaw_pivot,
+            ..SimConfig::default()
+        };
+        Simulator::new(self.mesh.clone(), self.attachments.clone(), config)
+    }
+
+    /// The render surface for simulated mesh positions (interleaved) and bone poses.
+    pub fn render_positions(&self, x: &[f64], bones: &crate::sim::BonePose) -> Vec<Point3<f64>> {
+        self.render
+            .bindings
+            .iter()
+            .zip(&self.render.rest)
+            .map(|(binding, rest)| match binding {
+                Binding::Embedded { element, weights } => {
+                    let mut p = nalgebra::Vector3::zeros();
+                    for (corner, &v) in self.mesh.tets[*element as usize].iter().enumerate() {
+                        let i = 3 * v as usize;
+                        p += nalgebra::Vector3::new(x[i], x[i + 1], x[i + 2]) * weights[corner];
+                    }
+                    Point3::from(p)
+                }
+                Binding::Rigid(bone) => bones.target(*bone, &self.jaw_pivot, rest),
+            })
+            .collect()
+    }
+
+    pub fn save(&self, path: &Path) -> Result<(), FileError> {
+        file::write(path, FACE_FORMAT, self)
+    }
+
+    pub fn load(path: &Path) -> Result<Self, FileError> {
+        file::read(path, FACE_FORMAT)
+    }
+}
