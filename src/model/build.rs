@@ -249,8 +249,12 @@ pub fn build_face(
         t.iter().all(|&v| n.dot(&inward[v as usize]) < 0.0)
     });
     report.dropped_triangles = before - triangles.len();
-    let (positions, mut triangles, inward, kept) = compact(&positions, &triangles, &inward);
-    let origin: Vec<usize> = kept.iter().map(|&v| origin[v]).collect();
+    let (mut triangles, kept) = compact(&triangles, positions.len());
+    let (positions, inward, origin) = (
+        gather(&positions, &kept),
+        gather(&inward, &kept),
+        gather(&origin, &kept),
+    );
     let mut thickness = tissue_thickness(rig, &rest, &positions, &inward, settings);
     limit_slope(&positions, &triangles, &mut thickness, MAX_THICKNESS_SLOPE);
 
@@ -318,9 +322,9 @@ pub fn build_face(
         if shell.mesh.vertex_count() == (shell.layers + 1) * used_count(&triangles) {
             (shell, positions, triangles, thickness, origin)
         } else {
-            let (p, t, d, kept) = compact(&positions, &triangles, &inward);
-            let thickness: Vec<f64> = kept.iter().map(|&v| thickness[v]).collect();
-            let origin: Vec<usize> = kept.iter().map(|&v| origin[v]).collect();
+            let (t, kept) = compact(&triangles, positions.len());
+            let (p, d) = (gather(&positions, &kept), gather(&inward, &kept));
+            let (thickness, origin) = (gather(&thickness, &kept), gather(&origin, &kept));
             (
                 extrude(&p, &t, &d, &thickness, settings.layers)?,
                 p,
@@ -454,34 +458,28 @@ fn area_ratio(shell: &crate::geometry::shell::Shell, t: &[u32; 3]) -> f64 {
     normal(shell.layers).dot(&outer) / outer.norm_squared()
 }
 
-/// Returns the kept vertices' old indices too.
-fn compact(
-    positions: &[Point3<f64>],
-    triangles: &[[u32; 3]],
-    inward: &[Vector3<f64>],
-) -> (
-    Vec<Point3<f64>>,
-    Vec<[u32; 3]>,
-    Vec<Vector3<f64>>,
-    Vec<usize>,
-) {
-    let mut map = vec![u32::MAX; positions.len()];
-    let (mut p, mut d, mut kept) = (Vec::new(), Vec::new(), Vec::new());
+/// Renumbers the vertices the triangles use, in order of first use: the new triangles and,
+/// for each new vertex, its old index (to carry per-vertex data along).
+fn compact(triangles: &[[u32; 3]], vertex_count: usize) -> (Vec<[u32; 3]>, Vec<usize>) {
+    let mut map = vec![u32::MAX; vertex_count];
+    let mut kept = Vec::new();
     let triangles = triangles
         .iter()
         .map(|t| {
             t.map(|v| {
                 if map[v as usize] == u32::MAX {
-                    map[v as usize] = p.len() as u32;
-                    p.push(positions[v as usize]);
-                    d.push(inward[v as usize]);
+                    map[v as usize] = kept.len() as u32;
                     kept.push(v as usize);
                 }
                 map[v as usize]
             })
         })
         .collect();
-    (p, triangles, d, kept)
+    (triangles, kept)
+}
+
+fn gather<T: Copy>(values: &[T], kept: &[usize]) -> Vec<T> {
+    kept.iter().map(|&v| values[v]).collect()
 }
 
 /// How many distinct vertices the triangles use.
