@@ -5,5 +5,6 @@
 
 pub mod bench;
 pub mod geometry;
+pub mod nn;
 pub mod scene;
 pub mod sim;
