@@ -100,6 +100,49 @@ pub fn time_cached<T: Real>(
     Ok(summary::<T>(points, Pass::Value, true, false, par, times))
 }
 
+/// Times `runs` calls of [`Mlp::gradient_chunked`] (chunks of `chunk_rows`, 8 lanes) for a
+/// linear loss on the outputs (and on the Jacobian after a `Jacobian` pass).
+pub fn time_chunked<T: Real>(
+    net: &Mlp<T>,
+    points: usize,
+    pass: Pass,
+    chunk_rows: usize,
+    par: Par,
+    runs: usize,
+) -> Result<Timing, NnError> {
+    let (x, codes) = inputs(net, points);
+    let mut ws = super::ChunkedGradient::new(chunk_rows, 8)?;
+    let mut grad = vec![T::ZERO; net.num_params()];
+    let loss = |_: std::ops::Range<usize>,
+                _: &Tape<T>,
+                mut dy: faer::MatMut<'_, T>,
+                dj: Option<faer::MatMut<'_, T>>| {
+        dy.fill(T::of(0.1));
+        if let Some(mut dj) = dj {
+            dj.fill(T::of(0.1));
+        }
+        T::ZERO
+    };
+    let mut times = Vec::with_capacity(runs);
+    for r in 0..=runs {
+        let t0 = Instant::now();
+        net.gradient_chunked(
+            x.as_ref(),
+            codes.as_ref(),
+            pass,
+            &mut ws,
+            &mut grad,
+            par,
+            loss,
+        )?;
+        let ms = t0.elapsed().as_secs_f64() * 1e3;
+        if r > 0 {
+            times.push(ms);
+        }
+    }
+    Ok(summary::<T>(points, pass, false, true, par, times))
+}
+
 /// `points` random positions in [−1, 1]^in and one shared random tanh-bounded code.
 fn inputs<T: Real>(net: &Mlp<T>, points: usize) -> (Mat<T>, Option<CodeBatch<T>>) {
     let mut rng = ChaCha8Rng::seed_from_u64(5);

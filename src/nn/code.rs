@@ -73,6 +73,29 @@ impl<T: Real> CodeBatch<T> {
         &self.values
     }
 
+    /// The codes of the points `rows` of an `n`-point batch, and the index of the first of
+    /// them in this batch (codes g₀.. of the result are codes g₀ + i here).
+    pub(crate) fn slice(&self, n: usize, rows: Range<usize>) -> Result<(Self, usize), NnError> {
+        if self.counts.is_none() {
+            return Ok((self.clone(), 0));
+        }
+        let ranges = self.ranges(n)?;
+        let mut first = None;
+        let mut counts = Vec::new();
+        let mut values = Vec::new();
+        for (g, r) in ranges.iter().enumerate() {
+            let (lo, hi) = (r.start.max(rows.start), r.end.min(rows.end));
+            // Keep empty runs between kept ones so code indices stay contiguous.
+            if lo < hi || (first.is_some() && r.start < rows.end) {
+                first.get_or_insert(g);
+                counts.push(hi.saturating_sub(lo));
+                values.extend_from_slice(self.code(g));
+            }
+        }
+        let first = first.unwrap_or(0);
+        Ok((CodeBatch::segments(self.dim, values, counts)?, first))
+    }
+
     /// The point ranges of the codes for a batch of `n` points.
     pub(crate) fn ranges(&self, n: usize) -> Result<Vec<Range<usize>>, NnError> {
         match &self.counts {

@@ -14,6 +14,12 @@
 //! - [`Mlp::backward`] is hand-written reverse mode through the primal and tangent
 //!   computation, so losses on both the outputs and the Jacobian get exact parameter, input
 //!   and code gradients. All of it is checked against central differences in the tests.
+//! - [`Mlp::gradient_chunked`] ([`ChunkedGradient`]) is the data-parallel way to train on
+//!   large batches: fixed-size chunks, per-lane accumulation, thread-count-independent bits,
+//!   bounded memory. Prefer it to `Par::rayon` on a whole-batch tape, whose fine-grained
+//!   fork/join scales poorly on a busy machine.
+//! - [`Mlp::cache_points`] ([`PointCache`]) precomputes the code-independent layers for a
+//!   fixed point set, so a new code (a slider change) costs only the remaining layers.
 //! - [`lipschitz`]: Liu et al. 2022 normalization and the λ Π softplus(cᵢ) loss.
 //! - [`Adam`], [`LrSchedule`], and [`Checkpoint`] (versioned, bit-exact parameter files).
 //!
@@ -67,7 +73,7 @@ pub use adam::{Adam, AdamConfig};
 pub use code::CodeBatch;
 pub use error::NnError;
 pub use layer::{Init, LayerSpec, MlpSpec};
-pub use mlp::{Mlp, PointCache};
+pub use mlp::{ChunkedGradient, Mlp, PointCache};
 pub use params::Checkpoint;
 pub use real::Real;
 pub use schedule::LrSchedule;

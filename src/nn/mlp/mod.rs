@@ -23,9 +23,11 @@
 use faer::{Mat, MatRef, Par};
 
 mod backward;
+mod chunked;
 mod forward;
 mod infer;
 
+pub use chunked::ChunkedGradient;
 pub use infer::PointCache;
 
 use super::code::CodeBatch;
