@@ -1,4 +1,5 @@
-//! Batched-pass timings of the nn kit: `cargo run --release --example nn_bench [points]`.
+//! Batched-pass timings of the nn kit:
+//! `cargo run --release --example nn_bench [points] [quick]` (`quick`: N_A width 128 only).
 //!
 //! N_A-shaped network: 3 → SIREN (ω0 = 5) → 3 × GeLU (Lipschitz, 64-d code concatenated)
 //! → 6, widths 128 and 64; a φ-shaped SIREN (3 → 4 × SIREN 128 → 3) for the Jacobian passes.
@@ -46,9 +47,11 @@ fn main() -> Result<(), NnError> {
         .nth(1)
         .and_then(|s| s.parse().ok())
         .unwrap_or(20_000);
+    let quick = std::env::args().nth(2).is_some_and(|a| a == "quick");
     let runs = 21;
     let pars = [Par::Seq, Par::rayon(2)];
-    for width in [128, 64] {
+    let widths: &[usize] = if quick { &[128] } else { &[128, 64] };
+    for &width in widths {
         let spec = actuation_like_spec(width, 3, 64);
         let name = format!("N_A w{width}");
         let na64 = Mlp::<f64>::new(spec.clone(), 1)?;
@@ -63,6 +66,9 @@ fn main() -> Result<(), NnError> {
             show(&name, runs, || time_cached(&na32, points, par, runs))?;
             show(&name, runs, || time_cached(&na64, points, par, runs))?;
         }
+    }
+    if quick {
+        return Ok(());
     }
     let few = 5;
     let na = Mlp::<f64>::new(actuation_like_spec(128, 3, 64), 1)?;
