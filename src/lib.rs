@@ -9,6 +9,7 @@
 pub mod bench;
 pub mod geometry;
 pub mod model;
+pub mod nn;
 pub mod rig;
 pub mod scene;
 pub mod sim;
