@@ -4,6 +4,7 @@ pub mod bvh;
 pub mod distance;
 pub mod embedding;
 pub mod generate;
+pub mod improve;
 pub mod query;
 pub mod remesh;
 pub mod shell;

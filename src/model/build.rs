@@ -16,6 +16,7 @@ use serde::{Deserialize, Serialize};
 
 use super::face::{Binding, FaceModel, RenderSurface};
 use crate::geometry::embedding::Embedding;
+use crate::geometry::improve::{ImproveReport, smart_smooth};
 use crate::geometry::query::TriangleIndex;
 use crate::geometry::remesh::{RemeshSettings, Surface, min_angles, remesh};
 use crate::geometry::shell::{ShellError, extrude, quality, smooth_directions, vertex_normals};
@@ -144,6 +145,8 @@ pub struct BuildReport {
     pub rigid_vertices: usize,
     /// Largest distance of an embedded render vertex outside the tissue (cm).
     pub max_embed_distance: f64,
+    /// The interior smoothing pass (worst dihedral angle before and after).
+    pub improvement: Option<ImproveReport>,
     pub seconds: f64,
 }
 
@@ -333,6 +336,12 @@ pub fn build_face(
                 origin,
             )
         };
+    // Untangle the crowded spots: smooth the tissue's interior (the skin layer stays put).
+    let mut shell = shell;
+    let movable: Vec<bool> = (0..shell.mesh.vertex_count())
+        .map(|v| v >= shell.surface_vertices)
+        .collect();
+    report.improvement = Some(smart_smooth(&mut shell.mesh, &movable, 30));
     let mut sorted = thickness.clone();
     sorted.sort_by(f64::total_cmp);
     (
