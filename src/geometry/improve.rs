@@ -65,11 +65,16 @@ pub fn smart_smooth(mesh: &mut TetMesh, movable: &[bool], sweeps: usize) -> Impr
             );
             let current = worst(mesh, &elements_of[v]);
             let mut best = (current, original);
-            for step in [1.0, 0.5, 0.25] {
-                mesh.vertices[v] = original + (centroid - original) * step;
-                let q = worst(mesh, &elements_of[v]);
-                if q > best.0 {
-                    best = (q, mesh.vertices[v]);
+            // Candidates: toward the neighbours' centroid, and toward the apex that would make
+            // the worst element around the vertex regular.
+            let apex = ideal_apex(mesh, &elements_of[v], v as u32);
+            for target in [Some(centroid), apex].into_iter().flatten() {
+                for step in [1.0, 0.5, 0.25] {
+                    mesh.vertices[v] = original + (target - original) * step;
+                    let q = worst(mesh, &elements_of[v]);
+                    if q > best.0 {
+                        best = (q, mesh.vertices[v]);
+                    }
                 }
             }
             mesh.vertices[v] = best.1;
@@ -88,6 +93,28 @@ pub fn smart_smooth(mesh: &mut TetMesh, movable: &[bool], sweeps: usize) -> Impr
         min_dihedral_before: before,
         min_dihedral_after: worst(mesh, &all),
     }
+}
+
+/// For the element around `v` with the smallest dihedral angle: the point above the centroid
+/// of its face opposite `v`, at the height of a regular tetrahedron over that face.
+fn ideal_apex(mesh: &TetMesh, elements: &[u32], v: u32) -> Option<Point3<f64>> {
+    let worst = elements.iter().min_by(|&&a, &&b| {
+        let q = |e: u32| {
+            dihedral_angles(&mesh.tets[e as usize].map(|w| mesh.vertices[w as usize]))
+                .into_iter()
+                .fold(180.0, f64::min)
+        };
+        q(a).total_cmp(&q(b))
+    })?;
+    let tet = mesh.tets[*worst as usize];
+    let corner = tet.iter().position(|&w| w == v)?;
+    // The opposite face, ordered so that its normal points toward v in a positive element.
+    const OPPOSITE: [[usize; 3]; 4] = [[1, 3, 2], [0, 2, 3], [0, 3, 1], [0, 1, 2]];
+    let f = OPPOSITE[corner].map(|i| mesh.vertices[tet[i] as usize]);
+    let normal = (f[1] - f[0]).cross(&(f[2] - f[0]));
+    let edge = ((f[1] - f[0]).norm() + (f[2] - f[1]).norm() + (f[0] - f[2]).norm()) / 3.0;
+    let centroid = Point3::from((f[0].coords + f[1].coords + f[2].coords) / 3.0);
+    Some(centroid + normal.try_normalize(1e-300)? * (edge * (2.0f64 / 3.0).sqrt()))
 }
 
 #[cfg(test)]

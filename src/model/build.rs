@@ -237,6 +237,14 @@ pub fn build_face(
         .copied()
         .filter(|t| t.iter().all(|&v| active[v as usize]))
         .collect();
+    // Only the crop's own border is pinned: not the skin's borders (mouth slit, eyes, rim),
+    // nor holes left later where the layer cannot be extruded.
+    let skin_border = border_vertices(&remeshed.triangles, remeshed.vertices.len());
+    let pinned: Vec<bool> = border_vertices(&cropped, remeshed.vertices.len())
+        .iter()
+        .zip(&skin_border)
+        .map(|(crop, skin)| *crop && !skin)
+        .collect();
 
     // 4. Where the tissue goes and how deep.
     let (positions, mut triangles) = (remeshed.vertices, cropped);
@@ -321,19 +329,20 @@ pub fn build_face(
         }
     };
     // Dropped triangles may leave vertices without tissue: compact and extrude once more.
-    let (shell, positions, triangles, thickness, origin) =
+    let (shell, positions, triangles, thickness, origin, pinned) =
         if shell.mesh.vertex_count() == (shell.layers + 1) * used_count(&triangles) {
-            (shell, positions, triangles, thickness, origin)
+            (shell, positions, triangles, thickness, origin, pinned)
         } else {
             let (t, kept) = compact(&triangles, positions.len());
             let (p, d) = (gather(&positions, &kept), gather(&inward, &kept));
-            let (thickness, origin) = (gather(&thickness, &kept), gather(&origin, &kept));
+            let shell = extrude(&p, &t, &d, &gather(&thickness, &kept), settings.layers)?;
             (
-                extrude(&p, &t, &d, &thickness, settings.layers)?,
+                shell,
                 p,
                 t,
-                thickness,
-                origin,
+                gather(&thickness, &kept),
+                gather(&origin, &kept),
+                gather(&skin_border, &kept),
             )
         };
     // Untangle the crowded spots: smooth the tissue's interior (the skin layer stays put).
@@ -363,22 +372,43 @@ pub fn build_face(
     .fold(180.0, f64::min);
 
     // 6. Attachments: the inner layer under skin that rides on a bone; the whole column at
-    //    the border of the simulated region, where it meets the skin that rides on the skull.
-    let border = border_vertices(&triangles, positions.len());
+    //    the border of the simulated region, where it meets skin that rides on a bone (the
+    //    skull, or the jaw under the chin).
+    let border = pinned;
+    let mut bone: Vec<Option<Bone>> = (0..positions.len())
+        .map(|v| {
+            motion
+                .bone_of(origin[v])
+                .or(border[v].then(|| motion.nearest_bone(origin[v])))
+        })
+        .collect();
+    // Tissue between skull and jaw must stay free to stretch: where the two bones' regions
+    // come within `BONE_GAP_RINGS` edges of each other, neither holds the tissue.
+    for _ in 0..BONE_GAP_RINGS {
+        let mut next = bone.clone();
+        for t in &triangles {
+            let has = |b: Bone| t.iter().any(|&v| bone[v as usize] == Some(b));
+            if has(Bone::Skull) && has(Bone::Jaw) {
+                for &v in t {
+                    if !border[v as usize] {
+                        next[v as usize] = None;
+                    }
+                }
+            }
+        }
+        bone = next;
+    }
     let mut attachments = Attachments::default();
-    for v in 0..positions.len() {
-        let bone = motion
-            .bone_of(origin[v])
-            .or(border[v].then_some(Bone::Skull));
-        if let Some(bone) = bone {
-            let layers: Vec<usize> = if border[v] {
-                (0..=shell.layers).collect()
+    for (v, b) in bone.iter().enumerate() {
+        if let Some(b) = *b {
+            let layers = if border[v] {
+                0..=shell.layers
             } else {
-                vec![shell.layers]
+                shell.layers..=shell.layers
             };
             for l in layers {
                 attachments.vertices.push(shell.vertex(l, v) as u32);
-                attachments.bones.push(bone);
+                attachments.bones.push(b);
             }
         }
     }
@@ -419,6 +449,9 @@ pub fn build_face(
 }
 
 /// Drops unreferenced vertices.
+/// Rings of skin left free between the skull's and the jaw's attachment regions.
+const BONE_GAP_RINGS: usize = 2;
+
 /// Rounds of thinning before the importer leaves the still-folding triangles out.
 const MAX_THINNING_ROUNDS: usize = 60;
 
