@@ -27,6 +27,8 @@ pub mod distance;
 mod math;
 pub mod mesh;
 pub mod potential;
+#[cfg(test)]
+mod test_scenes;
 
 pub use barrier::{barrier, barrier_first_derivative, barrier_second_derivative};
 pub use candidates::{Candidates, EdgeEdgeCandidate, PointTriangleCandidate};

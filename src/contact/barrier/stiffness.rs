@@ -78,9 +78,14 @@ mod tests {
         let (kmin_probe, kmax) = initial_barrier_stiffness(10.0, 0.01, 1.0, &[0.0], &[0.0], 1e11);
         // ∇B = 0: κ = 1 clamped to κ_min.
         assert!((kmax / kmin_probe - 100.0).abs() < 1e-9);
-        // ∇E = −3∇B balances at κ = 3 when κ_min is tiny.
-        let (k, _) = initial_barrier_stiffness(10.0, 0.01, 1e-30, &[-3.0, 6.0], &[1.0, -2.0], 1.0);
-        assert!((k - 3.0).abs() < 1e-12);
+        // ∇E = −3∇B balances at κ = 3 when 3 ∈ [κ_min, κ_max]: scale so that κ_min = 0.05.
+        let d0: f64 = (1e-8 * 10.0f64).powi(2);
+        let unit = 4.0 * d0 * barrier_second_derivative(d0, 1e-4);
+        let (k, kmax) = initial_barrier_stiffness(10.0, 0.01, 0.05 * unit, &[-3.0, 6.0], &[1.0, -2.0], 1.0);
+        assert!((k - 3.0).abs() < 1e-12 && (kmax - 5.0).abs() < 1e-12, "{k} {kmax}");
+        // Outside the bounds it is clamped.
+        let (k, _) = initial_barrier_stiffness(10.0, 0.01, 0.05 * unit, &[-300.0, 600.0], &[1.0, -2.0], 1.0);
+        assert!((k - 5.0).abs() < 1e-12);
     }
 
     #[test]
