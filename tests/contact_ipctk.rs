@@ -129,7 +129,11 @@ fn v(x: f64, y: f64, z: f64) -> V3 {
 }
 
 fn rand_v(rng: &mut ChaCha8Rng, s: f64) -> V3 {
-    v(rng.random_range(-s..s), rng.random_range(-s..s), rng.random_range(-s..s))
+    v(
+        rng.random_range(-s..s),
+        rng.random_range(-s..s),
+        rng.random_range(-s..s),
+    )
 }
 
 /// A face-sized offset (cm) so coordinates look like a real rig's.
@@ -142,7 +146,11 @@ fn point_triangle_configs() -> Vec<Config> {
     let mut out = Vec::new();
     for i in 0..150 {
         let x = std::array::from_fn(|_| origin() + rand_v(&mut rng, 0.3));
-        out.push(Config { name: format!("random {i}"), x, class: Class::Regular });
+        out.push(Config {
+            name: format!("random {i}"),
+            x,
+            class: Class::Regular,
+        });
     }
     // A lip-sized triangle and points over every region at several heights.
     let o = origin();
@@ -160,16 +168,30 @@ fn point_triangle_configs() -> Vec<Config> {
         for side in [1.0, -1.0] {
             let up = side * h * n;
             // Face interior.
-            out.push(Config { name: format!("face {h_name}"), x: [centroid + up, t[0], t[1], t[2]], class });
+            out.push(Config {
+                name: format!("face {h_name}"),
+                x: [centroid + up, t[0], t[1], t[2]],
+                class,
+            });
             for i in 0..3 {
                 let (a, b, c) = (t[i], t[(i + 1) % 3], t[(i + 2) % 3]);
                 let mid = 0.5 * (a + b);
-                let outward = (mid - c - (mid - c).dot(&(b - a)) / (b - a).norm_squared() * (b - a)).normalize();
+                let outward =
+                    (mid - c - (mid - c).dot(&(b - a)) / (b - a).norm_squared() * (b - a))
+                        .normalize();
                 let p = mid + 0.04 * outward + up;
-                out.push(Config { name: format!("edge {i} {h_name}"), x: [p, t[0], t[1], t[2]], class });
+                out.push(Config {
+                    name: format!("edge {i} {h_name}"),
+                    x: [p, t[0], t[1], t[2]],
+                    class,
+                });
                 let away = ((a - b).normalize() + (a - c).normalize()).normalize();
                 let p = a + 0.05 * away + up;
-                out.push(Config { name: format!("vertex {i} {h_name}"), x: [p, t[0], t[1], t[2]], class });
+                out.push(Config {
+                    name: format!("vertex {i} {h_name}"),
+                    x: [p, t[0], t[1], t[2]],
+                    class,
+                });
             }
         }
     }
@@ -181,22 +203,42 @@ fn point_triangle_configs() -> Vec<Config> {
         for (name, p) in [
             ("over edge", on_edge + 0.01 * n),
             ("over vertex", a + 0.01 * n),
-                        ("edge line beyond", b + 0.5 * (b - a)),
+            ("edge line beyond", b + 0.5 * (b - a)),
             ("edge line beyond, lifted", b + 0.5 * (b - a) + 0.01 * n),
         ] {
-            out.push(Config { name: format!("{name} {i}"), x: [p, t[0], t[1], t[2]], class: Class::Tie });
+            out.push(Config {
+                name: format!("{name} {i}"),
+                x: [p, t[0], t[1], t[2]],
+                class: Class::Tie,
+            });
         }
-        out.push(Config { name: format!("on edge {i}"), x: [on_edge, t[0], t[1], t[2]], class: Class::Touching });
+        out.push(Config {
+            name: format!("on edge {i}"),
+            x: [on_edge, t[0], t[1], t[2]],
+            class: Class::Touching,
+        });
     }
-    out.push(Config { name: "in face".into(), x: [centroid, t[0], t[1], t[2]], class: Class::Touching });
+    out.push(Config {
+        name: "in face".into(),
+        x: [centroid, t[0], t[1], t[2]],
+        class: Class::Touching,
+    });
     // Degenerate triangles.
     let e = v(0.2, 0.1, -0.05);
     for (name, p, tri) in [
         ("collinear", o + v(0.03, 0.1, 0.05), [o, o + e, o + 2.0 * e]),
-        ("collinear, middle apex", o + v(0.2, 0.1, 0.05), [o, o + e, o + 0.5 * e]),
+        (
+            "collinear, middle apex",
+            o + v(0.2, 0.1, 0.05),
+            [o, o + e, o + 0.5 * e],
+        ),
         ("collapsed edge", o + v(0.03, 0.1, 0.05), [o, o, o + e]),
     ] {
-        out.push(Config { name: name.into(), x: [p, tri[0], tri[1], tri[2]], class: Class::Degenerate });
+        out.push(Config {
+            name: name.into(),
+            x: [p, tri[0], tri[1], tri[2]],
+            class: Class::Degenerate,
+        });
     }
     out
 }
@@ -206,7 +248,11 @@ fn edge_edge_configs() -> Vec<Config> {
     let mut out = Vec::new();
     for i in 0..150 {
         let x = std::array::from_fn(|_| origin() + rand_v(&mut rng, 0.3));
-        out.push(Config { name: format!("random {i}"), x, class: Class::Regular });
+        out.push(Config {
+            name: format!("random {i}"),
+            x,
+            class: Class::Regular,
+        });
     }
     let o = origin();
     let a = [o, o + v(0.2, 0.03, 0.0)];
@@ -244,21 +290,45 @@ fn edge_edge_configs() -> Vec<Config> {
     ] {
         let off = 0.01 * n + 0.004 * side;
         let b0 = a[0] + shift * u + off;
-        out.push(Config { name: name.into(), x: [a[0], a[1], b0, b0 + k * u], class: Class::Regular });
+        out.push(Config {
+            name: name.into(),
+            x: [a[0], a[1], b0, b0 + k * u],
+            class: Class::Regular,
+        });
     }
     for theta in [0.1, 1e-2, 1e-3, 1e-5] {
         let rot = nalgebra::Rotation3::from_axis_angle(&nalgebra::Unit::new_normalize(n), theta);
         let b0 = a[0] + 0.2 * u + 0.01 * n - 0.3 * (rot * u);
         let b = [b0, b0 + 1.2 * (rot * u)];
-        let class = if theta >= 1e-2 { Class::Regular } else { Class::Ill(1.0 / (theta * theta)) };
-        out.push(Config { name: format!("nearly parallel {theta}"), x: [a[0], a[1], b[0], b[1]], class });
+        let class = if theta >= 1e-2 {
+            Class::Regular
+        } else {
+            Class::Ill(1.0 / (theta * theta))
+        };
+        out.push(Config {
+            name: format!("nearly parallel {theta}"),
+            x: [a[0], a[1], b[0], b[1]],
+            class,
+        });
     }
     // Ties: intersecting edges (distance 0), an end point exactly on the other edge, collinear
     // disjoint edges.
     let mid = a[0] + 0.5 * u;
-    out.push(Config { name: "intersecting".into(), x: [a[0], a[1], mid - 0.1 * side, mid + 0.1 * side], class: Class::Touching });
-    out.push(Config { name: "end on edge".into(), x: [a[0], a[1], mid, mid + 0.1 * side + 0.1 * n], class: Class::Touching });
-    out.push(Config { name: "collinear disjoint".into(), x: [a[0], a[1], a[0] + 1.5 * u, a[0] + 2.5 * u], class: Class::Tie });
+    out.push(Config {
+        name: "intersecting".into(),
+        x: [a[0], a[1], mid - 0.1 * side, mid + 0.1 * side],
+        class: Class::Touching,
+    });
+    out.push(Config {
+        name: "end on edge".into(),
+        x: [a[0], a[1], mid, mid + 0.1 * side + 0.1 * n],
+        class: Class::Touching,
+    });
+    out.push(Config {
+        name: "collinear disjoint".into(),
+        x: [a[0], a[1], a[0] + 1.5 * u, a[0] + 2.5 * u],
+        class: Class::Tie,
+    });
     out
 }
 
@@ -268,7 +338,14 @@ fn names(x: &[V3; 4]) -> Value {
 
 /// Two `n×n` lip-like grid sheets, `width` cm wide, `gap` cm apart, the upper one shifted,
 /// rotated about z and jittered: interleaved positions and triangles.
-fn two_sheets(n: usize, width: f64, gap: f64, angle: f64, noise: f64, seed: u64) -> (Vec<f64>, Vec<[u32; 3]>) {
+fn two_sheets(
+    n: usize,
+    width: f64,
+    gap: f64,
+    angle: f64,
+    noise: f64,
+    seed: u64,
+) -> (Vec<f64>, Vec<[u32; 3]>) {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let mut x = Vec::new();
     let mut faces = Vec::new();
@@ -331,7 +408,10 @@ fn rel_err(ours: &[f64], theirs: &[f64]) -> f64 {
 fn rel_err_floor(ours: &[f64], theirs: &[f64], floor: f64) -> f64 {
     assert_eq!(ours.len(), theirs.len());
     let scale = theirs.iter().fold(floor, |m, v| m.max(v.abs()));
-    let diff = ours.iter().zip(theirs).fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
+    let diff = ours
+        .iter()
+        .zip(theirs)
+        .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
     if scale == 0.0 { diff } else { diff / scale }
 }
 
@@ -354,8 +434,11 @@ impl Tally {
         if err > entry.0 || entry.1.is_empty() {
             *entry = (err.max(entry.0), name.to_string());
         }
-        if !(err <= tol) {
-            self.failures.push(format!("{quantity} of '{name}': relative error {err:e} > {tol:e}"));
+        // NaN counts as a failure.
+        if err.is_nan() || err > tol {
+            self.failures.push(format!(
+                "{quantity} of '{name}': relative error {err:e} > {tol:e}"
+            ));
         }
     }
 
@@ -364,7 +447,11 @@ impl Tally {
         for (k, (e, n)) in &self.rows {
             println!("  {k:<44} {e:9.2e}   ({n})");
         }
-        assert!(self.failures.is_empty(), "mismatches:\n{}", self.failures.join("\n"));
+        assert!(
+            self.failures.is_empty(),
+            "mismatches:\n{}",
+            self.failures.join("\n")
+        );
     }
 }
 
@@ -374,7 +461,9 @@ fn flat12(g: &nalgebra::SVector<f64, 12>) -> Vec<f64> {
 
 /// Row-major entries of a 12×12 matrix (ipctk's JSON rows).
 fn rows12(h: &nalgebra::SMatrix<f64, 12, 12>) -> Vec<f64> {
-    (0..12).flat_map(|r| (0..12).map(move |c| h[(r, c)])).collect()
+    (0..12)
+        .flat_map(|r| (0..12).map(move |c| h[(r, c)]))
+        .collect()
 }
 
 fn dense(blocks: &[HessianBlock], n: usize) -> Vec<f64> {
@@ -384,7 +473,8 @@ fn dense(blocks: &[HessianBlock], n: usize) -> Vec<f64> {
             for (j, &vj) in b.vertices.iter().enumerate() {
                 for r in 0..3 {
                     for c in 0..3 {
-                        h[(3 * vi as usize + r) * n + 3 * vj as usize + c] += b.matrix[(3 * i + r, 3 * j + c)];
+                        h[(3 * vi as usize + r) * n + 3 * vj as usize + c] +=
+                            b.matrix[(3 * i + r, 3 * j + c)];
                     }
                 }
             }
@@ -408,7 +498,13 @@ fn ccd_cases() -> Vec<CcdCase> {
         let x0: [V3; 4] = std::array::from_fn(|_| origin() + rand_v(&mut rng, 0.3));
         let s = [0.05, 0.3, 1.0][i % 3];
         let dx = std::array::from_fn(|_| rand_v(&mut rng, s));
-        out.push(CcdCase { name: format!("random {i}"), edge_edge: i % 2 == 1, x0, dx, min_distance: 0.0 });
+        out.push(CcdCase {
+            name: format!("random {i}"),
+            edge_edge: i % 2 == 1,
+            x0,
+            dx,
+            min_distance: 0.0,
+        });
     }
     let o = origin();
     let tri = [o, o + v(0.2, 0.0, 0.0), o + v(0.0, 0.2, 0.0)];
@@ -455,13 +551,23 @@ fn ccd_cases() -> Vec<CcdCase> {
         name: "edges crossing".into(),
         edge_edge: true,
         x0: [a[0], a[1], b[0], b[1]],
-        dx: [v(0.0, 0.0, -0.1), v(0.0, 0.0, -0.12), v(0.01, 0.0, 0.02), zero],
+        dx: [
+            v(0.0, 0.0, -0.1),
+            v(0.0, 0.0, -0.12),
+            v(0.01, 0.0, 0.02),
+            zero,
+        ],
         min_distance: 0.0,
     });
     out.push(CcdCase {
         name: "parallel edges approaching".into(),
         edge_edge: true,
-        x0: [a[0], a[1], a[0] + v(0.03, 0.0, -0.02), a[1] + v(0.03, 0.0, -0.02)],
+        x0: [
+            a[0],
+            a[1],
+            a[0] + v(0.03, 0.0, -0.02),
+            a[1] + v(0.03, 0.0, -0.02),
+        ],
         dx: [v(0.0, 0.0, -0.05), v(0.0, 0.0, -0.05), zero, zero],
         min_distance: 0.0,
     });
@@ -476,8 +582,14 @@ fn contact_matches_ipctk() {
     let pt = point_triangle_configs();
     let ee = edge_edge_configs();
 
-    let pt_types: Vec<_> = pt.iter().map(|c| point_triangle_distance_type(&c.x[0], &c.x[1], &c.x[2], &c.x[3])).collect();
-    let ee_types: Vec<_> = ee.iter().map(|c| edge_edge_distance_type(&c.x[0], &c.x[1], &c.x[2], &c.x[3])).collect();
+    let pt_types: Vec<_> = pt
+        .iter()
+        .map(|c| point_triangle_distance_type(&c.x[0], &c.x[1], &c.x[2], &c.x[3]))
+        .collect();
+    let ee_types: Vec<_> = ee
+        .iter()
+        .map(|c| edge_edge_distance_type(&c.x[0], &c.x[1], &c.x[2], &c.x[3]))
+        .collect();
 
     // Mollifier: nearly parallel pairs, rest = a slightly different shape.
     let mut rng = ChaCha8Rng::seed_from_u64(404);
@@ -503,13 +615,56 @@ fn contact_matches_ipctk() {
         .collect();
 
     let ccd_cases = ccd_cases();
-    let ccd_opts = CcdOptions { max_iterations: 1_000_000, ..CcdOptions::default() };
+    let ccd_opts = CcdOptions {
+        max_iterations: 1_000_000,
+        ..CcdOptions::default()
+    };
 
     let stiffness_cases = [
-        (20.0, 0.02, 1.0, vec![-3.0, 1.0, 0.5], vec![1.0, -2.0, 0.0], 1e11, 1e-20, 5e-21, 1e-9),
-        (20.0, 0.02, 1e-20, vec![-3.0, 1.0, 0.5], vec![1.0, -2.0, 0.0], 1.0, 1e-20, 5e-21, 1e-9),
-        (1.5, 0.01, 2.5, vec![0.0; 3], vec![0.0; 3], 1e11, 1.0, 0.5, 1e-9),
-        (1.5, 1.0, 1e-9, vec![3.0, 1.0, 0.5], vec![1.0, -2.0, 4.0], 1.0, 1e-30, 2e-30, 1e-9),
+        (
+            20.0,
+            0.02,
+            1.0,
+            vec![-3.0, 1.0, 0.5],
+            vec![1.0, -2.0, 0.0],
+            1e11,
+            1e-20,
+            5e-21,
+            1e-9,
+        ),
+        (
+            20.0,
+            0.02,
+            1e-20,
+            vec![-3.0, 1.0, 0.5],
+            vec![1.0, -2.0, 0.0],
+            1.0,
+            1e-20,
+            5e-21,
+            1e-9,
+        ),
+        (
+            1.5,
+            0.01,
+            2.5,
+            vec![0.0; 3],
+            vec![0.0; 3],
+            1e11,
+            1.0,
+            0.5,
+            1e-9,
+        ),
+        (
+            1.5,
+            1.0,
+            1e-9,
+            vec![3.0, 1.0, 0.5],
+            vec![1.0, -2.0, 4.0],
+            1.0,
+            1e-30,
+            2e-30,
+            1e-9,
+        ),
     ];
 
     let (sx, sfaces) = two_sheets(7, 1.0, 0.012, 0.15, 0.004, 505);
@@ -545,13 +700,22 @@ fn contact_matches_ipctk() {
 
     // Point–triangle.
     let mut type_agree = 0;
-    for ((c, t), r) in pt.iter().zip(&pt_types).zip(reference["point_triangle"].as_array().unwrap()) {
+    for ((c, t), r) in pt
+        .iter()
+        .zip(&pt_types)
+        .zip(reference["point_triangle"].as_array().unwrap())
+    {
         let x = &c.x;
         let theirs_type = r["type"].as_str().unwrap();
         if theirs_type == t.ipctk_name() {
             type_agree += 1;
         } else {
-            assert!(matches!(c.class, Class::Tie | Class::Touching | Class::Degenerate), "PT '{}': type {:?} vs ipctk {theirs_type}", c.name, t);
+            assert!(
+                matches!(c.class, Class::Tie | Class::Touching | Class::Degenerate),
+                "PT '{}': type {:?} vs ipctk {theirs_type}",
+                c.name,
+                t
+            );
         }
         let d = point_triangle_distance(&x[0], &x[1], &x[2], &x[3]);
         let their_d = r["distance"].as_f64().unwrap_or(f64::NAN);
@@ -563,37 +727,94 @@ fn contact_matches_ipctk() {
         let scale = (x[0] - x[1]).norm_squared().max(1e-300);
         // Distances: relative to the distance, or (at distance 0) to the stencil size.
         // At distance 0 (touching) the values are rounding noise: compare against ℓ², ℓ.
-        let (floor2, floor1) = if c.class == Class::Touching { (scale, scale.sqrt()) } else { (0.0, 0.0) };
-        tally.add("PT distance", c.class, &c.name, rel_err_floor(&[d], &[their_d], floor2));
+        let (floor2, floor1) = if c.class == Class::Touching {
+            (scale, scale.sqrt())
+        } else {
+            (0.0, 0.0)
+        };
+        tally.add(
+            "PT distance",
+            c.class,
+            &c.name,
+            rel_err_floor(&[d], &[their_d], floor2),
+        );
         let typed = point_triangle_distance_typed(&x[0], &x[1], &x[2], &x[3], *t);
-        tally.add("PT distance (our type)", c.class, &c.name, rel_err_floor(&[typed], &[r["distance_typed"].as_f64().unwrap()], floor2));
+        tally.add(
+            "PT distance (our type)",
+            c.class,
+            &c.name,
+            rel_err_floor(&[typed], &[r["distance_typed"].as_f64().unwrap()], floor2),
+        );
         let g = point_triangle_distance_gradient(&x[0], &x[1], &x[2], &x[3], *t);
-        tally.add("PT gradient", c.class, &c.name, rel_err_floor(&flat12(&g), &floats(&r["gradient"]), floor1));
+        tally.add(
+            "PT gradient",
+            c.class,
+            &c.name,
+            rel_err_floor(&flat12(&g), &floats(&r["gradient"]), floor1),
+        );
         let h = point_triangle_distance_hessian(&x[0], &x[1], &x[2], &x[3], *t);
-        tally.add("PT Hessian", c.class, &c.name, rel_err(&rows12(&h), &floats(&r["hessian"])));
+        tally.add(
+            "PT Hessian",
+            c.class,
+            &c.name,
+            rel_err(&rows12(&h), &floats(&r["hessian"])),
+        );
     }
 
     // Edge–edge.
-    for ((c, t), r) in ee.iter().zip(&ee_types).zip(reference["edge_edge"].as_array().unwrap()) {
+    for ((c, t), r) in ee
+        .iter()
+        .zip(&ee_types)
+        .zip(reference["edge_edge"].as_array().unwrap())
+    {
         let x = &c.x;
         let theirs_type = r["type"].as_str().unwrap();
         if theirs_type == t.ipctk_name() {
             type_agree += 1;
         } else {
-            assert!(matches!(c.class, Class::Tie | Class::Touching), "EE '{}': type {:?} vs ipctk {theirs_type}", c.name, t);
+            assert!(
+                matches!(c.class, Class::Tie | Class::Touching),
+                "EE '{}': type {:?} vs ipctk {theirs_type}",
+                c.name,
+                t
+            );
         }
         let d = edge_edge_distance(&x[0], &x[1], &x[2], &x[3]);
         let their_d = r["distance"].as_f64().unwrap();
         let scale = (x[0] - x[1]).norm_squared();
         // At distance 0 (touching) the values are rounding noise: compare against ℓ², ℓ.
-        let (floor2, floor1) = if c.class == Class::Touching { (scale, scale.sqrt()) } else { (0.0, 0.0) };
-        tally.add("EE distance", c.class, &c.name, rel_err_floor(&[d], &[their_d], floor2));
+        let (floor2, floor1) = if c.class == Class::Touching {
+            (scale, scale.sqrt())
+        } else {
+            (0.0, 0.0)
+        };
+        tally.add(
+            "EE distance",
+            c.class,
+            &c.name,
+            rel_err_floor(&[d], &[their_d], floor2),
+        );
         let typed = edge_edge_distance_typed(&x[0], &x[1], &x[2], &x[3], *t);
-        tally.add("EE distance (our type)", c.class, &c.name, rel_err_floor(&[typed], &[r["distance_typed"].as_f64().unwrap()], floor2));
+        tally.add(
+            "EE distance (our type)",
+            c.class,
+            &c.name,
+            rel_err_floor(&[typed], &[r["distance_typed"].as_f64().unwrap()], floor2),
+        );
         let g = edge_edge_distance_gradient(&x[0], &x[1], &x[2], &x[3], *t);
-        tally.add("EE gradient", c.class, &c.name, rel_err_floor(&flat12(&g), &floats(&r["gradient"]), floor1));
+        tally.add(
+            "EE gradient",
+            c.class,
+            &c.name,
+            rel_err_floor(&flat12(&g), &floats(&r["gradient"]), floor1),
+        );
         let h = edge_edge_distance_hessian(&x[0], &x[1], &x[2], &x[3], *t);
-        tally.add("EE Hessian", c.class, &c.name, rel_err(&rows12(&h), &floats(&r["hessian"])));
+        tally.add(
+            "EE Hessian",
+            c.class,
+            &c.name,
+            rel_err(&rows12(&h), &floats(&r["hessian"])),
+        );
     }
     println!(
         "distance types: {type_agree} of {} agree with ipctk (ties and degenerate triangles included)",
@@ -602,43 +823,123 @@ fn contact_matches_ipctk() {
 
     // Mollifier.
     let mut mollified = 0;
-    for (i, ((x, rest), r)) in mollifier_cases.iter().zip(reference["mollifier"].as_array().unwrap()).enumerate() {
+    for (i, ((x, rest), r)) in mollifier_cases
+        .iter()
+        .zip(reference["mollifier"].as_array().unwrap())
+        .enumerate()
+    {
         let name = format!("mollifier {i}");
         let eps = edge_edge_mollifier_threshold(&rest[0], &rest[1], &rest[2], &rest[3]);
-        tally.add("mollifier ε_x", Class::Regular, &name, rel_err(&[eps], &[r["eps_x"].as_f64().unwrap()]));
+        tally.add(
+            "mollifier ε_x",
+            Class::Regular,
+            &name,
+            rel_err(&[eps], &[r["eps_x"].as_f64().unwrap()]),
+        );
         let cross = edge_edge_cross_squarednorm(&x[0], &x[1], &x[2], &x[3]);
         if cross < eps {
             mollified += 1;
         }
-        tally.add("mollifier c = ‖ea×eb‖²", Class::Regular, &name, rel_err(&[cross], &[r["cross"].as_f64().unwrap()]));
+        tally.add(
+            "mollifier c = ‖ea×eb‖²",
+            Class::Regular,
+            &name,
+            rel_err(&[cross], &[r["cross"].as_f64().unwrap()]),
+        );
         let m = edge_edge_mollifier(&x[0], &x[1], &x[2], &x[3], eps);
-        tally.add("mollifier value", Class::Regular, &name, rel_err(&[m], &[r["value"].as_f64().unwrap()]));
+        tally.add(
+            "mollifier value",
+            Class::Regular,
+            &name,
+            rel_err(&[m], &[r["value"].as_f64().unwrap()]),
+        );
         let g = edge_edge_mollifier_gradient(&x[0], &x[1], &x[2], &x[3], eps);
-        tally.add("mollifier gradient", Class::Regular, &name, rel_err(&flat12(&g), &floats(&r["gradient"])));
+        tally.add(
+            "mollifier gradient",
+            Class::Regular,
+            &name,
+            rel_err(&flat12(&g), &floats(&r["gradient"])),
+        );
         let h = edge_edge_mollifier_hessian(&x[0], &x[1], &x[2], &x[3], eps);
-        tally.add("mollifier Hessian", Class::Regular, &name, rel_err(&rows12(&h), &floats(&r["hessian"])));
+        tally.add(
+            "mollifier Hessian",
+            Class::Regular,
+            &name,
+            rel_err(&rows12(&h), &floats(&r["hessian"])),
+        );
     }
-    assert!(mollified >= 10 && mollified < mollifier_cases.len(), "{mollified} mollified cases");
+    assert!(
+        mollified >= 10 && mollified < mollifier_cases.len(),
+        "{mollified} mollified cases"
+    );
 
     // Barrier.
-    for ((d, dh), r) in barrier_cases.iter().zip(reference["barrier"].as_array().unwrap()) {
+    for ((d, dh), r) in barrier_cases
+        .iter()
+        .zip(reference["barrier"].as_array().unwrap())
+    {
         let name = format!("d = {d:e}, d̂ = {dh:e}");
         // Near d̂, ipctk's textbook forms of b' and b'' cancel (we use cancellation-free ones):
         // its relative error grows like d̂/(d̂ − d).
-        let class = if *d < *dh && *d > 0.99 * dh { Class::Ill(dh / (dh - d)) } else { Class::Regular };
-        tally.add("barrier b", class, &name, rel_err(&[barrier(*d, *dh)], &[r["value"].as_f64().unwrap()]));
-        tally.add("barrier b'", class, &name, rel_err(&[barrier_first_derivative(*d, *dh)], &[r["first"].as_f64().unwrap()]));
-        tally.add("barrier b''", class, &name, rel_err(&[barrier_second_derivative(*d, *dh)], &[r["second"].as_f64().unwrap()]));
+        let class = if *d < *dh && *d > 0.99 * dh {
+            Class::Ill(dh / (dh - d))
+        } else {
+            Class::Regular
+        };
+        tally.add(
+            "barrier b",
+            class,
+            &name,
+            rel_err(&[barrier(*d, *dh)], &[r["value"].as_f64().unwrap()]),
+        );
+        tally.add(
+            "barrier b'",
+            class,
+            &name,
+            rel_err(
+                &[barrier_first_derivative(*d, *dh)],
+                &[r["first"].as_f64().unwrap()],
+            ),
+        );
+        tally.add(
+            "barrier b''",
+            class,
+            &name,
+            rel_err(
+                &[barrier_second_derivative(*d, *dh)],
+                &[r["second"].as_f64().unwrap()],
+            ),
+        );
     }
 
     // Adaptive stiffness.
-    for (i, (c, r)) in stiffness_cases.iter().zip(reference["stiffness"].as_array().unwrap()).enumerate() {
+    for (i, (c, r)) in stiffness_cases
+        .iter()
+        .zip(reference["stiffness"].as_array().unwrap())
+        .enumerate()
+    {
         let name = format!("stiffness {i}");
-        let (k, kmax) = facesim::contact::barrier::initial_barrier_stiffness(c.0, c.1, c.2, &c.3, &c.4, c.5);
-        tally.add("initial κ", Class::Regular, &name, rel_err(&[k], &[r["kappa"].as_f64().unwrap()]));
-        tally.add("κ_max", Class::Regular, &name, rel_err(&[kmax], &[r["kappa_max"].as_f64().unwrap()]));
+        let (k, kmax) =
+            facesim::contact::barrier::initial_barrier_stiffness(c.0, c.1, c.2, &c.3, &c.4, c.5);
+        tally.add(
+            "initial κ",
+            Class::Regular,
+            &name,
+            rel_err(&[k], &[r["kappa"].as_f64().unwrap()]),
+        );
+        tally.add(
+            "κ_max",
+            Class::Regular,
+            &name,
+            rel_err(&[kmax], &[r["kappa_max"].as_f64().unwrap()]),
+        );
         let up = facesim::contact::barrier::update_barrier_stiffness(c.6, c.7, kmax, k, c.0, c.8);
-        tally.add("updated κ", Class::Regular, &name, rel_err(&[up], &[r["updated"].as_f64().unwrap()]));
+        tally.add(
+            "updated κ",
+            Class::Regular,
+            &name,
+            rel_err(&[up], &[r["updated"].as_f64().unwrap()]),
+        );
     }
 
     // Potential on the two-sheet scene.
@@ -647,20 +948,58 @@ fn contact_matches_ipctk() {
     let pot = BarrierPotential::new(s_dhat, s_kappa).unwrap();
     let rp = &reference["potential"];
     let n = sx.len();
-    println!("potential scene: {} active pairs (ipctk: {} merged collisions)", set.len(), rp["active"]);
+    println!(
+        "potential scene: {} active pairs (ipctk: {} merged collisions)",
+        set.len(),
+        rp["active"]
+    );
     assert!(set.len() > 50);
-    tally.add("potential value", Class::Regular, "two sheets", rel_err(&[pot.value(&set, &sx).unwrap()], &[rp["value"].as_f64().unwrap()]));
-    tally.add("potential gradient", Class::Regular, "two sheets", rel_err(&pot.gradient(&set, &sx).unwrap(), &floats(&rp["gradient"])));
+    tally.add(
+        "potential value",
+        Class::Regular,
+        "two sheets",
+        rel_err(
+            &[pot.value(&set, &sx).unwrap()],
+            &[rp["value"].as_f64().unwrap()],
+        ),
+    );
+    tally.add(
+        "potential gradient",
+        Class::Regular,
+        "two sheets",
+        rel_err(&pot.gradient(&set, &sx).unwrap(), &floats(&rp["gradient"])),
+    );
     let h = dense(&pot.hessian(&set, &sx, Projection::None).unwrap(), n);
-    tally.add("potential Hessian", Class::Regular, "two sheets", rel_err(&h, &floats(&rp["hessian"])));
-    let h = dense(&pot.hessian(&set, &sx, Projection::ClampEigenvalues).unwrap(), n);
-    tally.add("potential Hessian, PSD-projected", Class::Regular, "two sheets", rel_err(&h, &floats(&rp["hessian_psd"])));
+    tally.add(
+        "potential Hessian",
+        Class::Regular,
+        "two sheets",
+        rel_err(&h, &floats(&rp["hessian"])),
+    );
+    let h = dense(
+        &pot.hessian(&set, &sx, Projection::ClampEigenvalues)
+            .unwrap(),
+        n,
+    );
+    tally.add(
+        "potential Hessian, PSD-projected",
+        Class::Regular,
+        "two sheets",
+        rel_err(&h, &floats(&rp["hessian_psd"])),
+    );
 
     // CCD.
     let mut worst_ratio = f64::INFINITY;
     for (c, r) in ccd_cases.iter().zip(reference["ccd"].as_array().unwrap()) {
-        let opts = CcdOptions { min_distance: c.min_distance, ..ccd_opts };
-        let ours = if c.edge_edge { ccd::edge_edge_ccd(&c.x0, &c.dx, 1.0, &opts) } else { ccd::point_triangle_ccd(&c.x0, &c.dx, 1.0, &opts) };
+        let opts = CcdOptions {
+            min_distance: c.min_distance,
+            ..ccd_opts
+        };
+        let ours = if c.edge_edge {
+            ccd::edge_edge_ccd(&c.x0, &c.dx, 1.0, &opts)
+        } else {
+            ccd::point_triangle_ccd(&c.x0, &c.dx, 1.0, &opts)
+        };
         let accd = r["additive"]["toi"].as_f64().unwrap();
         let ti = r["tight_inclusion"]["toi"].as_f64().unwrap();
         let ti_hit = r["tight_inclusion"]["hit"].as_bool().unwrap();
@@ -672,17 +1011,28 @@ fn contact_matches_ipctk() {
             ours.outcome
         );
         // Conservative: never past Tight Inclusion's certified lower bound of the impact.
-        assert!(ours.toi <= ti + 1e-12, "CCD '{}': ours {} passes Tight Inclusion's {ti}", c.name, ours.toi);
+        assert!(
+            ours.toi <= ti + 1e-12,
+            "CCD '{}': ours {} passes Tight Inclusion's {ti}",
+            c.name,
+            ours.toi
+        );
         if ti_hit && ti > 0.0 && c.min_distance == 0.0 {
             worst_ratio = worst_ratio.min(ours.toi / ti);
         }
-        tally.rows.entry("CCD |ours − ipctk additive| [all]".into()).and_modify(|e| {
-            if (ours.toi - accd).abs() > e.0 {
-                *e = ((ours.toi - accd).abs(), c.name.clone());
-            }
-        }).or_insert(((ours.toi - accd).abs(), c.name.clone()));
+        tally
+            .rows
+            .entry("CCD |ours − ipctk additive| [all]".into())
+            .and_modify(|e| {
+                if (ours.toi - accd).abs() > e.0 {
+                    *e = ((ours.toi - accd).abs(), c.name.clone());
+                }
+            })
+            .or_insert(((ours.toi - accd).abs(), c.name.clone()));
     }
-    println!("CCD: smallest ours / Tight-Inclusion time of impact over impacting cases: {worst_ratio:.3}");
+    println!(
+        "CCD: smallest ours / Tight-Inclusion time of impact over impacting cases: {worst_ratio:.3}"
+    );
     tally.report();
 }
 
@@ -716,20 +1066,42 @@ fn benchmark_against_ipctk() {
     );
     let mesh = ContactMesh::new(&x, faces.clone()).unwrap();
     let pot = BarrierPotential::new(dhat, kappa).unwrap();
-    println!("two sheets: {} triangles, d̂ = {dhat} cm at d̂/2, median of {reps} runs (ms)", faces.len());
-    println!("{:<10} {:>8} {:>10} {:>8} {:>9} {:>9} {:>10} {:>12}", "who", "threads", "active", "build", "value", "gradient", "Hessian", "Hessian PSD");
+    println!(
+        "two sheets: {} triangles, d̂ = {dhat} cm at d̂/2, median of {reps} runs (ms)",
+        faces.len()
+    );
+    println!(
+        "{:<10} {:>8} {:>10} {:>8} {:>9} {:>9} {:>10} {:>12}",
+        "who", "threads", "active", "build", "value", "gradient", "Hessian", "Hessian PSD"
+    );
     for t in threads {
-        let pool = rayon::ThreadPoolBuilder::new().num_threads(t).build().unwrap();
-        let (build, set) = pool.install(|| median(reps, || Collisions::build(&mesh, &x, dhat).unwrap()));
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(t)
+            .build()
+            .unwrap();
+        let (build, set) =
+            pool.install(|| median(reps, || Collisions::build(&mesh, &x, dhat).unwrap()));
         let (value, val) = pool.install(|| median(reps, || pot.value(&set, &x).unwrap()));
         let (grad, _) = pool.install(|| median(reps, || pot.gradient(&set, &x).unwrap()));
-        let (hess, _) = pool.install(|| median(reps, || pot.hessian(&set, &x, Projection::None).unwrap()));
-        let (psd, _) = pool.install(|| median(reps, || pot.hessian(&set, &x, Projection::ClampEigenvalues).unwrap()));
+        let (hess, _) =
+            pool.install(|| median(reps, || pot.hessian(&set, &x, Projection::None).unwrap()));
+        let (psd, _) = pool.install(|| {
+            median(reps, || {
+                pot.hessian(&set, &x, Projection::ClampEigenvalues).unwrap()
+            })
+        });
         let r = &reference[t.to_string()];
         let ms = |s: f64| s * 1e3;
         println!(
             "{:<10} {:>8} {:>10} {:>8.2} {:>9.3} {:>9.3} {:>10.3} {:>12.3}",
-            "facesim", t, set.len(), ms(build), ms(value), ms(grad), ms(hess), ms(psd)
+            "facesim",
+            t,
+            set.len(),
+            ms(build),
+            ms(value),
+            ms(grad),
+            ms(hess),
+            ms(psd)
         );
         println!(
             "{:<10} {:>8} {:>10} {:>8.2} {:>9.3} {:>9.3} {:>10.3} {:>12.3}",

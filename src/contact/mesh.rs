@@ -45,7 +45,7 @@ impl ContactMesh {
         group: Vec<u16>,
         can_touch: &[Vec<bool>],
     ) -> Result<Self, ContactError> {
-        if rest.len() % 3 != 0 {
+        if !rest.len().is_multiple_of(3) {
             return Err(ContactError::PositionsLength {
                 expected: rest.len() - rest.len() % 3,
                 got: rest.len(),
@@ -55,7 +55,9 @@ impl ContactMesh {
         if vertex_count > u32::MAX as usize {
             return Err(ContactError::InvalidMesh("too many vertices".into()));
         }
-        if let Some(i) = (0..vertex_count).find(|&i| !rest[3 * i..3 * i + 3].iter().all(|v| v.is_finite())) {
+        if let Some(i) =
+            (0..vertex_count).find(|&i| !rest[3 * i..3 * i + 3].iter().all(|v| v.is_finite()))
+        {
             return Err(ContactError::NonFinite(i));
         }
         if group.len() != vertex_count {
@@ -66,19 +68,21 @@ impl ContactMesh {
         }
         let groups = can_touch.len();
         if groups == 0 || can_touch.iter().any(|row| row.len() != groups) {
-            return Err(ContactError::InvalidMesh("can_touch must be a non-empty square matrix".into()));
+            return Err(ContactError::InvalidMesh(
+                "can_touch must be a non-empty square matrix".into(),
+            ));
         }
-        for g in 0..groups {
-            for h in 0..groups {
-                if can_touch[g][h] != can_touch[h][g] {
-                    return Err(ContactError::InvalidMesh(format!(
-                        "can_touch is not symmetric at ({g}, {h})"
-                    )));
-                }
+        for (g, row) in can_touch.iter().enumerate() {
+            if let Some(h) = (0..groups).find(|&h| row[h] != can_touch[h][g]) {
+                return Err(ContactError::InvalidMesh(format!(
+                    "can_touch is not symmetric at ({g}, {h})"
+                )));
             }
         }
         if let Some(&g) = group.iter().find(|&&g| g as usize >= groups) {
-            return Err(ContactError::InvalidMesh(format!("vertex group {g} out of range")));
+            return Err(ContactError::InvalidMesh(format!(
+                "vertex group {g} out of range"
+            )));
         }
         for (f, tri) in faces.iter().enumerate() {
             if tri.iter().any(|&v| v as usize >= vertex_count) {
@@ -87,7 +91,9 @@ impl ContactMesh {
                 )));
             }
             if tri[0] == tri[1] || tri[1] == tri[2] || tri[2] == tri[0] {
-                return Err(ContactError::InvalidMesh(format!("face {f} {tri:?} repeats a vertex")));
+                return Err(ContactError::InvalidMesh(format!(
+                    "face {f} {tri:?} repeats a vertex"
+                )));
             }
         }
         let mut edges: Vec<[u32; 2]> = faces
@@ -143,8 +149,23 @@ impl ContactMesh {
     /// Whether vertices `a` and `b` may be in contact (by their groups).
     #[inline]
     pub fn can_touch(&self, a: u32, b: u32) -> bool {
-        let (g, h) = (self.group[a as usize] as usize, self.group[b as usize] as usize);
+        let (g, h) = (
+            self.group[a as usize] as usize,
+            self.group[b as usize] as usize,
+        );
         self.can_touch[g * self.groups + h]
+    }
+
+    /// Diagonal of the bounding box of the contact vertices at `x` (cm), the scene size that
+    /// the adaptive stiffness uses; 0 for an empty mesh. `x` must have passed
+    /// [`ContactMesh::check_positions`].
+    pub fn bbox_diagonal(&self, x: &[f64]) -> f64 {
+        let mut pts = self.vertices.iter().map(|&v| vertex(x, v));
+        let Some(first) = pts.next() else {
+            return 0.0;
+        };
+        let (min, max) = pts.fold((first, first), |(lo, hi), p| (lo.inf(&p), hi.sup(&p)));
+        (max - min).norm()
     }
 
     /// Checks interleaved positions (or displacements) for this mesh: length and finiteness of

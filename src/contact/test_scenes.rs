@@ -31,7 +31,13 @@ pub fn two_sheets(
                 } else {
                     (c * u - s * v + shift[0], s * u + c * v + shift[1], gap)
                 };
-                let mut jitter = || if noise > 0.0 { rng.random_range(-noise..noise) } else { 0.0 };
+                let mut jitter = || {
+                    if noise > 0.0 {
+                        rng.random_range(-noise..noise)
+                    } else {
+                        0.0
+                    }
+                };
                 x.extend([px + jitter(), py + jitter(), pz + jitter()]);
             }
         }

@@ -78,8 +78,14 @@ mod tests {
                 / (2.0 * h);
             let b1 = barrier_first_derivative(d, dhat);
             let b2 = barrier_second_derivative(d, dhat);
-            assert!((fd1 - b1).abs() <= 1e-6 * b1.abs(), "b' at {d}: {fd1} vs {b1}");
-            assert!((fd2 - b2).abs() <= 1e-6 * b2.abs(), "b'' at {d}: {fd2} vs {b2}");
+            assert!(
+                (fd1 - b1).abs() <= 1e-6 * b1.abs(),
+                "b' at {d}: {fd1} vs {b1}"
+            );
+            assert!(
+                (fd2 - b2).abs() <= 1e-6 * b2.abs(),
+                "b'' at {d}: {fd2} vs {b2}"
+            );
             assert!(barrier(d, dhat) > 0.0 && b1 < 0.0 && b2 > 0.0);
         }
     }
@@ -103,6 +109,9 @@ mod tests {
         let b2 = barrier_second_derivative(d, dhat);
         assert!((b2 / (6.0 * delta) - 1.0).abs() < 1e-8, "{b2}");
         let b1 = barrier_first_derivative(d, dhat);
-        assert!((b1 / (-3.0 * delta * dhat * delta) - 1.0).abs() < 1e-8, "{b1}");
+        assert!(
+            (b1 / (-3.0 * delta * dhat * delta) - 1.0).abs() < 1e-8,
+            "{b1}"
+        );
     }
 }

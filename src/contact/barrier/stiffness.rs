@@ -40,7 +40,11 @@ pub fn initial_barrier_stiffness(
     let kappa_max = 100.0 * kappa_min;
     let gb2: f64 = grad_barrier.iter().map(|g| g * g).sum();
     let kappa = if gb2 > 0.0 {
-        let dot: f64 = grad_barrier.iter().zip(grad_energy).map(|(b, e)| b * e).sum();
+        let dot: f64 = grad_barrier
+            .iter()
+            .zip(grad_energy)
+            .map(|(b, e)| b * e)
+            .sum();
         -dot / gb2
     } else {
         1.0
@@ -81,10 +85,15 @@ mod tests {
         // ∇E = −3∇B balances at κ = 3 when 3 ∈ [κ_min, κ_max]: scale so that κ_min = 0.05.
         let d0: f64 = (1e-8 * 10.0f64).powi(2);
         let unit = 4.0 * d0 * barrier_second_derivative(d0, 1e-4);
-        let (k, kmax) = initial_barrier_stiffness(10.0, 0.01, 0.05 * unit, &[-3.0, 6.0], &[1.0, -2.0], 1.0);
-        assert!((k - 3.0).abs() < 1e-12 && (kmax - 5.0).abs() < 1e-12, "{k} {kmax}");
+        let (k, kmax) =
+            initial_barrier_stiffness(10.0, 0.01, 0.05 * unit, &[-3.0, 6.0], &[1.0, -2.0], 1.0);
+        assert!(
+            (k - 3.0).abs() < 1e-12 && (kmax - 5.0).abs() < 1e-12,
+            "{k} {kmax}"
+        );
         // Outside the bounds it is clamped.
-        let (k, _) = initial_barrier_stiffness(10.0, 0.01, 0.05 * unit, &[-300.0, 600.0], &[1.0, -2.0], 1.0);
+        let (k, _) =
+            initial_barrier_stiffness(10.0, 0.01, 0.05 * unit, &[-300.0, 600.0], &[1.0, -2.0], 1.0);
         assert!((k - 5.0).abs() < 1e-12);
     }
 
@@ -92,9 +101,21 @@ mod tests {
     fn update_doubles_only_when_stuck_close() {
         let diag = 1.0;
         let tiny = 1e-20;
-        assert_eq!(update_barrier_stiffness(2.0 * tiny, tiny, 100.0, 1.0, diag, 1e-9), 2.0);
-        assert_eq!(update_barrier_stiffness(2.0 * tiny, tiny, 1.5, 1.0, diag, 1e-9), 1.5);
-        assert_eq!(update_barrier_stiffness(tiny, 2.0 * tiny, 100.0, 1.0, diag, 1e-9), 1.0);
-        assert_eq!(update_barrier_stiffness(1.0, 0.5, 100.0, 1.0, diag, 1e-9), 1.0);
+        assert_eq!(
+            update_barrier_stiffness(2.0 * tiny, tiny, 100.0, 1.0, diag, 1e-9),
+            2.0
+        );
+        assert_eq!(
+            update_barrier_stiffness(2.0 * tiny, tiny, 1.5, 1.0, diag, 1e-9),
+            1.5
+        );
+        assert_eq!(
+            update_barrier_stiffness(tiny, 2.0 * tiny, 100.0, 1.0, diag, 1e-9),
+            1.0
+        );
+        assert_eq!(
+            update_barrier_stiffness(1.0, 0.5, 100.0, 1.0, diag, 1e-9),
+            1.0
+        );
     }
 }

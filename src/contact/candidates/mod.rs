@@ -123,9 +123,14 @@ impl Candidates {
                     for &eb in found.iter().filter(|&&eb| eb > ea) {
                         let [b0, b1] = edges[eb as usize];
                         let shares = a0 == b0 || a0 == b1 || a1 == b0 || a1 == b1;
-                        let touch = [a0, a1].iter().all(|&p| mesh.can_touch(p, b0) && mesh.can_touch(p, b1));
+                        let touch = [a0, a1]
+                            .iter()
+                            .all(|&p| mesh.can_touch(p, b0) && mesh.can_touch(p, b1));
                         if !shares && touch {
-                            out.push(EdgeEdgeCandidate { edge_a: ea, edge_b: eb });
+                            out.push(EdgeEdgeCandidate {
+                                edge_a: ea,
+                                edge_b: eb,
+                            });
                         }
                     }
                 }

@@ -5,7 +5,11 @@ use crate::contact::distance::{edge_edge_distance, point_triangle_distance};
 use crate::contact::math::vertex;
 use crate::contact::test_scenes::{two_sheet_mesh, two_sheets};
 
-fn brute_force(mesh: &ContactMesh, x: &[f64], within: f64) -> (Vec<PointTriangleCandidate>, Vec<EdgeEdgeCandidate>) {
+fn brute_force(
+    mesh: &ContactMesh,
+    x: &[f64],
+    within: f64,
+) -> (Vec<PointTriangleCandidate>, Vec<EdgeEdgeCandidate>) {
     let w2 = within * within;
     let mut pt = Vec::new();
     for &v in mesh.vertices() {
@@ -16,7 +20,10 @@ fn brute_force(mesh: &ContactMesh, x: &[f64], within: f64) -> (Vec<PointTriangle
             let p = vertex(x, v);
             let [a, b, c] = tri.map(|t| vertex(x, t));
             if point_triangle_distance(&p, &a, &b, &c) < w2 {
-                pt.push(PointTriangleCandidate { vertex: v, face: f as u32 });
+                pt.push(PointTriangleCandidate {
+                    vertex: v,
+                    face: f as u32,
+                });
             }
         }
     }
@@ -27,9 +34,17 @@ fn brute_force(mesh: &ContactMesh, x: &[f64], within: f64) -> (Vec<PointTriangle
             if a0 == b0 || a0 == b1 || a1 == b0 || a1 == b1 {
                 continue;
             }
-            let d = edge_edge_distance(&vertex(x, a0), &vertex(x, a1), &vertex(x, b0), &vertex(x, b1));
+            let d = edge_edge_distance(
+                &vertex(x, a0),
+                &vertex(x, a1),
+                &vertex(x, b0),
+                &vertex(x, b1),
+            );
             if d < w2 {
-                ee.push(EdgeEdgeCandidate { edge_a: i as u32, edge_b: j as u32 });
+                ee.push(EdgeEdgeCandidate {
+                    edge_a: i as u32,
+                    edge_b: j as u32,
+                });
             }
         }
     }
@@ -74,10 +89,16 @@ fn swept_candidates_contain_every_pair_close_along_the_step() {
         let xt: Vec<f64> = x.iter().zip(&dx).map(|(a, b)| a + t * b).collect();
         let (pt, ee) = brute_force(&mesh, &xt, 1e-3);
         for p in &pt {
-            assert!(c.point_triangle.binary_search(p).is_ok(), "missed {p:?} at t = {t}");
+            assert!(
+                c.point_triangle.binary_search(p).is_ok(),
+                "missed {p:?} at t = {t}"
+            );
         }
         for e in &ee {
-            assert!(c.edge_edge.binary_search(e).is_ok(), "missed {e:?} at t = {t}");
+            assert!(
+                c.edge_edge.binary_search(e).is_ok(),
+                "missed {e:?} at t = {t}"
+            );
         }
     }
 }
@@ -99,24 +120,51 @@ fn groups_that_may_not_touch_give_no_pairs() {
         for e in &c.edge_edge {
             let [a0, a1] = mesh.edges()[e.edge_a as usize];
             let [b0, b1] = mesh.edges()[e.edge_b as usize];
-            assert!([a0, a1].iter().all(|&a| same(a, b0) == want_same && same(a, b1) == want_same));
+            assert!(
+                [a0, a1]
+                    .iter()
+                    .all(|&a| same(a, b0) == want_same && same(a, b1) == want_same)
+            );
         }
     };
     // Each sheet with itself only, then the sheets only with each other.
     check(&[vec![true, false], vec![false, true]], true);
     check(&[vec![false, true], vec![true, false]], false);
-    assert!(ContactMesh::with_groups(&x, faces.clone(), group.clone(), &[vec![true, false], vec![true, true]]).is_err());
+    assert!(
+        ContactMesh::with_groups(
+            &x,
+            faces.clone(),
+            group.clone(),
+            &[vec![true, false], vec![true, true]]
+        )
+        .is_err()
+    );
 }
 
 #[test]
 fn bad_inputs_are_typed_errors() {
     let (x, faces) = two_sheets(3, 0.1, [0.0, 0.0], 0.0, 0.0, 1);
     let mesh = two_sheet_mesh(&x, &faces);
-    assert!(matches!(Candidates::build(&mesh, &x[1..], 0.1), Err(ContactError::PositionsLength { .. })));
+    assert!(matches!(
+        Candidates::build(&mesh, &x[1..], 0.1),
+        Err(ContactError::PositionsLength { .. })
+    ));
     let mut bad = x.clone();
     bad[4] = f64::NAN;
-    assert_eq!(Candidates::build(&mesh, &bad, 0.1), Err(ContactError::NonFinite(1)));
-    assert!(matches!(Candidates::build(&mesh, &x, -1.0), Err(ContactError::InvalidParameter(_))));
-    assert!(matches!(ContactMesh::new(&x, vec![[0, 1, 99]]), Err(ContactError::InvalidMesh(_))));
-    assert!(matches!(ContactMesh::new(&x, vec![[0, 1, 1]]), Err(ContactError::InvalidMesh(_))));
+    assert_eq!(
+        Candidates::build(&mesh, &bad, 0.1),
+        Err(ContactError::NonFinite(1))
+    );
+    assert!(matches!(
+        Candidates::build(&mesh, &x, -1.0),
+        Err(ContactError::InvalidParameter(_))
+    ));
+    assert!(matches!(
+        ContactMesh::new(&x, vec![[0, 1, 99]]),
+        Err(ContactError::InvalidMesh(_))
+    ));
+    assert!(matches!(
+        ContactMesh::new(&x, vec![[0, 1, 1]]),
+        Err(ContactError::InvalidMesh(_))
+    ));
 }

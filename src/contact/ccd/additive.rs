@@ -30,11 +30,18 @@ pub struct NarrowPhase {
 
 /// ACCD for the point–triangle pair with start positions `x0 = [p, t0, t1, t2]` and
 /// displacements `dx` over `t ∈ [0, tmax]`.
-pub fn point_triangle_ccd(x0: &[Vec3; 4], dx: &[Vec3; 4], tmax: f64, opts: &CcdOptions) -> NarrowPhase {
+pub fn point_triangle_ccd(
+    x0: &[Vec3; 4],
+    dx: &[Vec3; 4],
+    tmax: f64,
+    opts: &CcdOptions,
+) -> NarrowPhase {
     let mut d = *dx;
     subtract_mean(&mut d);
     let rate = d[0].norm() + d[1].norm().max(d[2].norm()).max(d[3].norm());
-    additive_ccd(x0, &d, rate, tmax, opts, |x| point_triangle_distance(&x[0], &x[1], &x[2], &x[3]))
+    additive_ccd(x0, &d, rate, tmax, opts, |x| {
+        point_triangle_distance(&x[0], &x[1], &x[2], &x[3])
+    })
 }
 
 /// ACCD for the edge–edge pair with start positions `x0 = [ea0, ea1, eb0, eb1]` and
@@ -43,7 +50,9 @@ pub fn edge_edge_ccd(x0: &[Vec3; 4], dx: &[Vec3; 4], tmax: f64, opts: &CcdOption
     let mut d = *dx;
     subtract_mean(&mut d);
     let rate = d[0].norm().max(d[1].norm()) + d[2].norm().max(d[3].norm());
-    additive_ccd(x0, &d, rate, tmax, opts, |x| edge_edge_distance(&x[0], &x[1], &x[2], &x[3]))
+    additive_ccd(x0, &d, rate, tmax, opts, |x| {
+        edge_edge_distance(&x[0], &x[1], &x[2], &x[3])
+    })
 }
 
 fn subtract_mean(d: &mut [Vec3; 4]) {
@@ -68,7 +77,11 @@ fn additive_ccd(
     let eta = opts.conservative_rescaling;
     let d0 = distance_squared(x0).sqrt();
     // Rounding in a squared distance of points at scale L is ~ε·L²; in d it is ~ε·L²/d.
-    let scale = x0.iter().map(|p| p.amax()).fold(0.0, f64::max).max(f64::MIN_POSITIVE);
+    let scale = x0
+        .iter()
+        .map(|p| p.amax())
+        .fold(0.0, f64::max)
+        .max(f64::MIN_POSITIVE);
     let noise = 64.0 * f64::EPSILON * scale;
     if !(d0 > xi) || d0 - xi <= noise {
         return NarrowPhase {

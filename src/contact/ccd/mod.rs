@@ -60,7 +60,9 @@ impl CcdOptions {
             )));
         }
         if self.max_iterations == 0 {
-            return Err(ContactError::InvalidParameter("CCD needs max_iterations ≥ 1".into()));
+            return Err(ContactError::InvalidParameter(
+                "CCD needs max_iterations ≥ 1".into(),
+            ));
         }
         Ok(())
     }

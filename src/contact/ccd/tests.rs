@@ -10,7 +10,11 @@ use crate::contact::math::Vec3;
 use crate::contact::test_scenes::{two_sheet_mesh, two_sheets};
 
 fn rand_vec(rng: &mut ChaCha8Rng, s: f64) -> Vec3 {
-    Vec3::new(rng.random_range(-s..s), rng.random_range(-s..s), rng.random_range(-s..s))
+    Vec3::new(
+        rng.random_range(-s..s),
+        rng.random_range(-s..s),
+        rng.random_range(-s..s),
+    )
 }
 
 fn at(x0: &[Vec3; 4], dx: &[Vec3; 4], t: f64) -> [Vec3; 4] {
@@ -51,7 +55,10 @@ fn assert_no_contact(
         if s != prev_sign && s != 0.0 {
             // An orientation flip is fine only away from contact: the distance is positive on
             // both sides and (certified below) in between.
-            assert!(d > 0.0 && prev.1 > 0.0, "{what}: flip through contact at t = {t}");
+            assert!(
+                d > 0.0 && prev.1 > 0.0,
+                "{what}: flip through contact at t = {t}"
+            );
             prev_sign = s;
         }
         certify(x0, dx, prev, (t, d), dist, rate, 0, what);
@@ -73,7 +80,10 @@ fn certify(
     if (da + db - rate * (b - a)) / 2.0 > 0.0 {
         return;
     }
-    assert!(depth < 40, "{what}: cannot certify [{a}, {b}] (d = {da:e}, {db:e})");
+    assert!(
+        depth < 40,
+        "{what}: cannot certify [{a}, {b}] (d = {da:e}, {db:e})"
+    );
     let m = 0.5 * (a + b);
     let dm = dist(&at(x0, dx, m));
     assert!(dm > 0.0, "{what}: distance 0 at t = {m}");
@@ -103,7 +113,11 @@ fn randomized_steps_never_pass_through() {
         let scale = [0.01, 0.5, 2.0, 4.0][trial % 4];
         let dx: [Vec3; 4] = std::array::from_fn(|_| rand_vec(&mut rng, scale));
         for edge_edge in [false, true] {
-            let r = if edge_edge { edge_edge_ccd(&x0, &dx, 1.0, &opts) } else { point_triangle_ccd(&x0, &dx, 1.0, &opts) };
+            let r = if edge_edge {
+                edge_edge_ccd(&x0, &dx, 1.0, &opts)
+            } else {
+                point_triangle_ccd(&x0, &dx, 1.0, &opts)
+            };
             assert!((0.0..=1.0).contains(&r.toi));
             if r.outcome == CcdOutcome::Hit {
                 hits += 1;
@@ -112,8 +126,18 @@ fn randomized_steps_never_pass_through() {
             let dist = |x: &[Vec3; 4]| if edge_edge { ee_dist(x) } else { pt_dist(x) };
             // The returned state keeps the gap (1 − η)·d₀.
             let d0 = dist(&x0);
-            assert!(dist(&at(&x0, &dx, r.toi)) >= (1.0 - opts.conservative_rescaling) * d0 * (1.0 - 1e-9));
-            assert_no_contact(&x0, &dx, r.toi, &dist, rate(&dx, edge_edge), &format!("trial {trial} ee={edge_edge}"));
+            assert!(
+                dist(&at(&x0, &dx, r.toi))
+                    >= (1.0 - opts.conservative_rescaling) * d0 * (1.0 - 1e-9)
+            );
+            assert_no_contact(
+                &x0,
+                &dx,
+                r.toi,
+                &dist,
+                rate(&dx, edge_edge),
+                &format!("trial {trial} ee={edge_edge}"),
+            );
         }
     }
     assert!(hits > 50, "only {hits} impacts in the randomized set");
@@ -124,17 +148,41 @@ fn head_on_impacts_stop_before_the_known_time() {
     let opts = CcdOptions::default();
     // A point falling onto the interior of a triangle from height h at speed v: TOI = h/v.
     for (h, v) in [(1.0, 2.0), (1e-3, 1.0), (1e-6, 3.0), (0.5, 0.5000001)] {
-        let x0 = [Vec3::new(0.2, 0.2, h), Vec3::zeros(), Vec3::new(1.0, 0.0, 0.0), Vec3::new(0.0, 1.0, 0.0)];
-        let dx = [Vec3::new(0.0, 0.0, -v), Vec3::zeros(), Vec3::zeros(), Vec3::zeros()];
+        let x0 = [
+            Vec3::new(0.2, 0.2, h),
+            Vec3::zeros(),
+            Vec3::new(1.0, 0.0, 0.0),
+            Vec3::new(0.0, 1.0, 0.0),
+        ];
+        let dx = [
+            Vec3::new(0.0, 0.0, -v),
+            Vec3::zeros(),
+            Vec3::zeros(),
+            Vec3::zeros(),
+        ];
         let toi_true = h / v;
         let r = point_triangle_ccd(&x0, &dx, 1.0, &opts);
         assert_eq!(r.outcome, CcdOutcome::Hit);
-        assert!(r.toi < toi_true && r.toi >= 0.8 * toi_true, "h={h} v={v}: {} vs {toi_true}", r.toi);
+        assert!(
+            r.toi < toi_true && r.toi >= 0.8 * toi_true,
+            "h={h} v={v}: {} vs {toi_true}",
+            r.toi
+        );
     }
     // Crossing edges: ea along x at z = h, eb along y at z = 0, ea moving down.
     let h = 0.3;
-    let x0 = [Vec3::new(-1.0, 0.1, h), Vec3::new(1.0, 0.1, h), Vec3::new(0.2, -1.0, 0.0), Vec3::new(0.2, 1.0, 0.0)];
-    let dx = [Vec3::new(0.0, 0.0, -1.0), Vec3::new(0.0, 0.0, -1.0), Vec3::zeros(), Vec3::zeros()];
+    let x0 = [
+        Vec3::new(-1.0, 0.1, h),
+        Vec3::new(1.0, 0.1, h),
+        Vec3::new(0.2, -1.0, 0.0),
+        Vec3::new(0.2, 1.0, 0.0),
+    ];
+    let dx = [
+        Vec3::new(0.0, 0.0, -1.0),
+        Vec3::new(0.0, 0.0, -1.0),
+        Vec3::zeros(),
+        Vec3::zeros(),
+    ];
     let r = edge_edge_ccd(&x0, &dx, 1.0, &opts);
     assert_eq!(r.outcome, CcdOutcome::Hit);
     assert!(r.toi < h && r.toi >= 0.8 * h);
@@ -146,34 +194,93 @@ fn head_on_impacts_stop_before_the_known_time() {
 #[test]
 fn zero_steps_rigid_motion_and_close_pairs() {
     let opts = CcdOptions::default();
-    let x0 = [Vec3::new(0.2, 0.2, 0.1), Vec3::zeros(), Vec3::new(1.0, 0.0, 0.0), Vec3::new(0.0, 1.0, 0.0)];
+    let x0 = [
+        Vec3::new(0.2, 0.2, 0.1),
+        Vec3::zeros(),
+        Vec3::new(1.0, 0.0, 0.0),
+        Vec3::new(0.0, 1.0, 0.0),
+    ];
     let zero = [Vec3::zeros(); 4];
-    assert_eq!(point_triangle_ccd(&x0, &zero, 1.0, &opts).outcome, CcdOutcome::Clear);
+    assert_eq!(
+        point_triangle_ccd(&x0, &zero, 1.0, &opts).outcome,
+        CcdOutcome::Clear
+    );
     assert_eq!(point_triangle_ccd(&x0, &zero, 1.0, &opts).toi, 1.0);
     let shift = [Vec3::new(5.0, -3.0, 100.0); 4];
     let r = edge_edge_ccd(&x0, &shift, 1.0, &opts);
-    assert_eq!((r.outcome, r.toi, r.iterations), (CcdOutcome::Clear, 1.0, 0));
+    assert_eq!(
+        (r.outcome, r.toi, r.iterations),
+        (CcdOutcome::Clear, 1.0, 0)
+    );
     // Touching at the start: no step can be certified.
     let touching = [Vec3::new(0.2, 0.2, 0.0), x0[1], x0[2], x0[3]];
-    let up = [Vec3::new(0.0, 0.0, 1.0), Vec3::zeros(), Vec3::zeros(), Vec3::zeros()];
+    let up = [
+        Vec3::new(0.0, 0.0, 1.0),
+        Vec3::zeros(),
+        Vec3::zeros(),
+        Vec3::zeros(),
+    ];
     let r = point_triangle_ccd(&touching, &up, 1.0, &opts);
     assert_eq!((r.outcome, r.toi), (CcdOutcome::TooClose, 0.0));
     // Already within min_distance.
-    let near = CcdOptions { min_distance: 0.2, ..opts };
-    assert_eq!(point_triangle_ccd(&x0, &up, 1.0, &near).outcome, CcdOutcome::TooClose);
+    let near = CcdOptions {
+        min_distance: 0.2,
+        ..opts
+    };
+    assert_eq!(
+        point_triangle_ccd(&x0, &up, 1.0, &near).outcome,
+        CcdOutcome::TooClose
+    );
     // Very close and sliding sideways: safe, possibly capped; moving away: clear.
     let close = [Vec3::new(0.2, 0.2, 1e-7), x0[1], x0[2], x0[3]];
-    let slide = [Vec3::new(0.3, 0.3, 0.0), Vec3::zeros(), Vec3::zeros(), Vec3::zeros()];
-    let capped = CcdOptions { max_iterations: 1000, ..opts };
+    let slide = [
+        Vec3::new(0.3, 0.3, 0.0),
+        Vec3::zeros(),
+        Vec3::zeros(),
+        Vec3::zeros(),
+    ];
+    let capped = CcdOptions {
+        max_iterations: 1000,
+        ..opts
+    };
     let r = point_triangle_ccd(&close, &slide, 1.0, &capped);
     assert_eq!(r.outcome, CcdOutcome::IterationCap);
     assert!(r.toi > 0.0 && r.toi < 1.0);
-    assert_no_contact(&close, &slide, r.toi, &pt_dist, rate(&slide, false), "sliding");
-    let away = [Vec3::new(0.0, 0.0, 1.0), Vec3::zeros(), Vec3::zeros(), Vec3::zeros()];
-    assert_eq!(point_triangle_ccd(&close, &away, 1.0, &opts).outcome, CcdOutcome::Clear);
+    assert_no_contact(
+        &close,
+        &slide,
+        r.toi,
+        &pt_dist,
+        rate(&slide, false),
+        "sliding",
+    );
+    let away = [
+        Vec3::new(0.0, 0.0, 1.0),
+        Vec3::zeros(),
+        Vec3::zeros(),
+        Vec3::zeros(),
+    ];
+    assert_eq!(
+        point_triangle_ccd(&close, &away, 1.0, &opts).outcome,
+        CcdOutcome::Clear
+    );
     // Invalid options.
-    assert!(CcdOptions { conservative_rescaling: 1.0, ..opts }.validate().is_err());
-    assert!(CcdOptions { min_distance: -1.0, ..opts }.validate().is_err());
+    assert!(
+        CcdOptions {
+            conservative_rescaling: 1.0,
+            ..opts
+        }
+        .validate()
+        .is_err()
+    );
+    assert!(
+        CcdOptions {
+            min_distance: -1.0,
+            ..opts
+        }
+        .validate()
+        .is_err()
+    );
 }
 
 #[test]
@@ -191,12 +298,19 @@ fn surfaces_pressed_together_stop_before_contact() {
     assert!(report.step > 0.05 && report.step < 0.25, "{report:?}");
     assert!(report.limiting.is_some());
     // After the step every pair is still apart: check with a fine static active set.
-    let xt: Vec<f64> = x.iter().zip(&dx).map(|(a, b)| a + report.step * b).collect();
+    let xt: Vec<f64> = x
+        .iter()
+        .zip(&dx)
+        .map(|(a, b)| a + report.step * b)
+        .collect();
     let set = crate::contact::Collisions::build(&mesh, &xt, 0.05).unwrap();
     assert!(set.min_distance_squared() > 0.0);
     // Moving apart: the full step.
     let away: Vec<f64> = dx.iter().map(|v| -v).collect();
-    assert_eq!(collision_free_step(&mesh, &x, &away, &opts).unwrap().step, 1.0);
+    assert_eq!(
+        collision_free_step(&mesh, &x, &away, &opts).unwrap().step,
+        1.0
+    );
     // Deterministic.
     assert_eq!(collision_free_step(&mesh, &x, &dx, &opts).unwrap(), report);
 }

@@ -173,7 +173,12 @@ pub fn point_triangle_distance_type(
 
 /// A degenerate triangle is a segment (or a point): the type of the nearest of its three
 /// edges (first one on ties), never `Face`.
-fn degenerate_triangle_type(p: &Vec3, t0: &Vec3, t1: &Vec3, t2: &Vec3) -> PointTriangleDistanceType {
+fn degenerate_triangle_type(
+    p: &Vec3,
+    t0: &Vec3,
+    t1: &Vec3,
+    t2: &Vec3,
+) -> PointTriangleDistanceType {
     use PointTriangleDistanceType as T;
     let corners = [t0, t1, t2];
     let mut best = (f64::INFINITY, T::Vertex0);
@@ -182,15 +187,19 @@ fn degenerate_triangle_type(p: &Vec3, t0: &Vec3, t1: &Vec3, t2: &Vec3) -> PointT
         let (d, ty) = match point_edge_distance_type(p, a, b) {
             PointEdgeDistanceType::Vertex0 => ((p - a).norm_squared(), i),
             PointEdgeDistanceType::Vertex1 => ((p - b).norm_squared(), (i + 1) % 3),
-            PointEdgeDistanceType::Edge => (
-                super::primitives::point_line_distance(p, a, b),
-                3 + i,
-            ),
+            PointEdgeDistanceType::Edge => (super::primitives::point_line_distance(p, a, b), 3 + i),
         };
         if d < best.0 {
             best = (
                 d,
-                [T::Vertex0, T::Vertex1, T::Vertex2, T::Edge0, T::Edge1, T::Edge2][ty],
+                [
+                    T::Vertex0,
+                    T::Vertex1,
+                    T::Vertex2,
+                    T::Edge0,
+                    T::Edge1,
+                    T::Edge2,
+                ][ty],
             );
         }
     }

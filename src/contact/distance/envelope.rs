@@ -179,7 +179,8 @@ impl Envelope {
         let mut g = Vector12::zeros();
         for i in 0..4 {
             if self.a[i] != 0.0 {
-                g.fixed_rows_mut::<3>(3 * i).copy_from(&(2.0 * self.a[i] * self.v));
+                g.fixed_rows_mut::<3>(3 * i)
+                    .copy_from(&(2.0 * self.a[i] * self.v));
             }
         }
         g

@@ -6,8 +6,8 @@
 //! which keeps every distance polynomial-rational and smooth within a type.
 
 mod distance_type;
-pub(crate) mod envelope;
 mod edge_edge;
+pub(crate) mod envelope;
 pub mod mollifier;
 mod point_triangle;
 mod primitives;

@@ -169,7 +169,9 @@ fn seg_dist(p: &Vec3, a: &Vec3, b: &Vec3) -> f64 {
 /// projection is inside) and the three segments.
 fn reference_pt(x: &[Vec3; 4]) -> f64 {
     let [p, a, b, c] = x;
-    let mut best = seg_dist(p, a, b).min(seg_dist(p, b, c)).min(seg_dist(p, c, a));
+    let mut best = seg_dist(p, a, b)
+        .min(seg_dist(p, b, c))
+        .min(seg_dist(p, c, a));
     let n = (b - a).cross(&(c - a));
     let q = p - n * ((p - a).dot(&n) / n.norm_squared());
     let inside = [(a, b), (b, c), (c, a)]
@@ -269,35 +271,64 @@ fn degenerate_inputs_stay_finite() {
     for x in &cases {
         let t = point_triangle_distance_type(&x[0], &x[1], &x[2], &x[3]);
         let d = point_triangle_distance(&x[0], &x[1], &x[2], &x[3]);
-        assert!((d - reference_pt_degenerate(x)).abs() < 1e-12, "{x:?}: {t:?} {d}");
+        assert!(
+            (d - reference_pt_degenerate(x)).abs() < 1e-12,
+            "{x:?}: {t:?} {d}"
+        );
         for tt in PT_TYPES {
             let (d, g, h) = point_triangle_distance_derivatives(x, tt);
-            assert!(d.is_finite() && g.iter().chain(h.iter()).all(|v| v.is_finite()), "{x:?} {tt:?}");
+            assert!(
+                d.is_finite() && g.iter().chain(h.iter()).all(|v| v.is_finite()),
+                "{x:?} {tt:?}"
+            );
         }
         // The same points as edges: zero-length and collinear edges.
         let t = edge_edge_distance_type(&x[0], &x[1], &x[2], &x[3]);
         for tt in EE_TYPES.into_iter().chain([t]) {
             let (d, g, h) = edge_edge_distance_derivatives(x, tt);
-            assert!(d.is_finite() && g.iter().chain(h.iter()).all(|v| v.is_finite()), "{x:?} {tt:?}");
+            assert!(
+                d.is_finite() && g.iter().chain(h.iter()).all(|v| v.is_finite()),
+                "{x:?} {tt:?}"
+            );
         }
     }
     // Both edges points; one edge a point.
     let p = Vec3::new(0.0, 0.5, 0.2);
-    assert_eq!(edge_edge_distance_type(&p, &p, &o, &o), EdgeEdgeDistanceType::Ea0Eb0);
-    assert_eq!(edge_edge_distance_type(&p, &p, &o, &ex), EdgeEdgeDistanceType::Ea0Eb);
-    assert_eq!(edge_edge_distance_type(&o, &ex, &p, &p), EdgeEdgeDistanceType::EaEb0);
-    assert_eq!(point_edge_distance_type(&p, &o, &o), PointEdgeDistanceType::Vertex0);
+    assert_eq!(
+        edge_edge_distance_type(&p, &p, &o, &o),
+        EdgeEdgeDistanceType::Ea0Eb0
+    );
+    assert_eq!(
+        edge_edge_distance_type(&p, &p, &o, &ex),
+        EdgeEdgeDistanceType::Ea0Eb
+    );
+    assert_eq!(
+        edge_edge_distance_type(&o, &ex, &p, &p),
+        EdgeEdgeDistanceType::EaEb0
+    );
+    assert_eq!(
+        point_edge_distance_type(&p, &o, &o),
+        PointEdgeDistanceType::Vertex0
+    );
     assert!((point_edge_distance(&p, &o, &ex) - 0.29).abs() < 1e-15);
 }
 
 /// Brute force over the segments only (a degenerate triangle has no face).
 fn reference_pt_degenerate(x: &[Vec3; 4]) -> f64 {
     let seg = |p: &Vec3, a: &Vec3, b: &Vec3| {
-        if a == b { (p - a).norm_squared() } else { seg_dist(p, a, b) }
+        if a == b {
+            (p - a).norm_squared()
+        } else {
+            seg_dist(p, a, b)
+        }
     };
     let [p, a, b, c] = x;
     let segs = seg(p, a, b).min(seg(p, b, c)).min(seg(p, c, a));
-    if is_degenerate_triangle(a, b, c) { segs } else { reference_pt(x) }
+    if is_degenerate_triangle(a, b, c) {
+        segs
+    } else {
+        reference_pt(x)
+    }
 }
 
 #[test]
@@ -308,11 +339,23 @@ fn face_hessian_of_the_point_is_twice_the_normal_projector() {
         Vec3::new(1.0, 0.0, 0.0),
         Vec3::new(0.0, 1.0, 0.0),
     ];
-    let h = point_triangle_distance_hessian(&x[0], &x[1], &x[2], &x[3], PointTriangleDistanceType::Face);
+    let h = point_triangle_distance_hessian(
+        &x[0],
+        &x[1],
+        &x[2],
+        &x[3],
+        PointTriangleDistanceType::Face,
+    );
     let hpp = h.fixed_view::<3, 3>(0, 0);
     let expected = nalgebra::Matrix3::new(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 2.0);
     assert!((hpp - expected).amax() < 1e-15);
-    let g = point_triangle_distance_gradient(&x[0], &x[1], &x[2], &x[3], PointTriangleDistanceType::Face);
+    let g = point_triangle_distance_gradient(
+        &x[0],
+        &x[1],
+        &x[2],
+        &x[3],
+        PointTriangleDistanceType::Face,
+    );
     assert!((g.fixed_rows::<3>(0) - Vec3::new(0.0, 0.0, 0.8)).amax() < 1e-15);
     // Translation invariance: the gradient sums to zero over the stencil.
     let sum: Vec3 = (0..4).map(|i| g.fixed_rows::<3>(3 * i).into_owned()).sum();

@@ -98,6 +98,18 @@ impl BarrierPotential {
                 got: x.len(),
             });
         }
+        if let Some(v) = collisions
+            .collisions
+            .iter()
+            .flat_map(|c| c.vertices)
+            .find(|&v| {
+                !x[3 * v as usize..3 * v as usize + 3]
+                    .iter()
+                    .all(|c| c.is_finite())
+            })
+        {
+            return Err(ContactError::NonFinite(v as usize));
+        }
         Ok(())
     }
 

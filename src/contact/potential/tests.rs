@@ -20,7 +20,8 @@ fn dense_hessian(blocks: &[HessianBlock], n: usize) -> Vec<f64> {
             for (j, &vj) in b.vertices.iter().enumerate() {
                 for r in 0..3 {
                     for c in 0..3 {
-                        h[(3 * vi as usize + r) * n + 3 * vj as usize + c] += b.matrix[(3 * i + r, 3 * j + c)];
+                        h[(3 * vi as usize + r) * n + 3 * vj as usize + c] +=
+                            b.matrix[(3 * i + r, 3 * j + c)];
                     }
                 }
             }
@@ -41,14 +42,15 @@ fn gradient_and_hessian_match_finite_differences() {
         .iter()
         .filter(|c| {
             let p = c.positions(&x);
-            c.kind == CollisionKind::EdgeEdge && edge_edge_cross_squarednorm(&p[0], &p[1], &p[2], &p[3]) < c.eps_x
+            c.kind == CollisionKind::EdgeEdge
+                && edge_edge_cross_squarednorm(&p[0], &p[1], &p[2], &p[3]) < c.eps_x
         })
         .count();
     assert!(mollified > 0, "no mollified edge pair in the scene");
-    assert!(set
-        .collisions
-        .iter()
-        .any(|c| matches!(c.dtype, CollisionType::PointTriangle(crate::contact::PointTriangleDistanceType::Face))));
+    assert!(set.collisions.iter().any(|c| matches!(
+        c.dtype,
+        CollisionType::PointTriangle(crate::contact::PointTriangleDistanceType::Face)
+    )));
 
     let n = x.len();
     let g = pot.gradient(&set, &x).unwrap();
@@ -63,12 +65,20 @@ fn gradient_and_hessian_match_finite_differences() {
         xp[i] += step;
         xm[i] -= step;
         let fd = (pot.value(&set, &xp).unwrap() - pot.value(&set, &xm).unwrap()) / (2.0 * step);
-        assert!((fd - g[i]).abs() <= 1e-5 * gscale, "dof {i}: {fd} vs {}", g[i]);
+        assert!(
+            (fd - g[i]).abs() <= 1e-5 * gscale,
+            "dof {i}: {fd} vs {}",
+            g[i]
+        );
         let gp = pot.gradient(&set, &xp).unwrap();
         let gm = pot.gradient(&set, &xm).unwrap();
         for j in 0..n {
             let fd = (gp[j] - gm[j]) / (2.0 * step);
-            assert!((fd - h[j * n + i]).abs() <= 1e-5 * hscale, "H[{j}, {i}]: {fd} vs {}", h[j * n + i]);
+            assert!(
+                (fd - h[j * n + i]).abs() <= 1e-5 * hscale,
+                "H[{j}, {i}]: {fd} vs {}",
+                h[j * n + i]
+            );
         }
     }
     // Hessian-vector products from the blocks agree with the dense matrix.
@@ -108,12 +118,20 @@ fn results_are_bitwise_identical_across_thread_counts() {
         let pot = BarrierPotential::new(dhat, 3.0).unwrap();
         (
             pot.value(&set, &x).unwrap().to_bits(),
-            pot.gradient(&set, &x).unwrap().iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+            pot.gradient(&set, &x)
+                .unwrap()
+                .iter()
+                .map(|v| v.to_bits())
+                .collect::<Vec<_>>(),
             pot.hessian(&set, &x, Projection::ClampEigenvalues).unwrap(),
         )
     };
     let many = run();
-    let one = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap().install(run);
+    let one = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .unwrap()
+        .install(run);
     assert!(many == one);
 }
 
@@ -121,12 +139,33 @@ fn results_are_bitwise_identical_across_thread_counts() {
 fn touching_pairs_and_mismatches_are_errors() {
     let (x, faces) = two_sheets(3, 0.0, [0.0, 0.0], 0.0, 0.0, 1);
     let mesh = two_sheet_mesh(&x, &faces);
-    assert!(matches!(Collisions::build(&mesh, &x, 0.01), Err(ContactError::Touching { .. })));
+    assert!(matches!(
+        Collisions::build(&mesh, &x, 0.01),
+        Err(ContactError::Touching { .. })
+    ));
     let (mesh, x, dhat) = scene();
     let set = Collisions::build(&mesh, &x, dhat).unwrap();
     let other = BarrierPotential::new(2.0 * dhat, 1.0).unwrap();
-    assert!(matches!(other.value(&set, &x), Err(ContactError::InvalidParameter(_))));
+    assert!(matches!(
+        other.value(&set, &x),
+        Err(ContactError::InvalidParameter(_))
+    ));
     assert!(BarrierPotential::new(0.0, 1.0).is_err());
+    let v = set.collisions[0].vertices[1];
+    let mut bad = x.clone();
+    bad[3 * v as usize] = f64::INFINITY;
+    let pot = BarrierPotential::new(dhat, 1.0).unwrap();
+    assert_eq!(
+        pot.gradient(&set, &bad),
+        Err(ContactError::NonFinite(v as usize))
+    );
+    assert!(matches!(
+        pot.value(&set, &x[..6]),
+        Err(ContactError::PositionsLength { .. })
+    ));
+    // The scene is about 1 cm wide and 0.006 cm thick.
+    let diag = mesh.bbox_diagonal(&x);
+    assert!(diag > 1.4 && diag < 1.6, "{diag}");
     assert!(BarrierPotential::new(1.0, f64::NAN).is_err());
     // Far apart: empty set, zero potential.
     let (x, faces) = two_sheets(3, 1.0, [0.0, 0.0], 0.0, 0.0, 1);
