@@ -22,19 +22,33 @@ use nalgebra::Matrix3;
 use crate::contact::math::{Matrix12, Vec3, Vector12};
 
 /// The closest-point parametrization of one distance type on a 4-vertex stencil. Stencil
-/// vertices that the type does not involve have `aᵢ = c_{k,i} = 0`.
+/// vertices that the type does not involve have `aᵢ = c_{k,i} = 0`. Only `a` and `v` are
+/// computed up front (all the gradient needs); the Hessian's terms come from `curvature`.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Envelope {
     /// `aᵢ`: the distance vector is `v = Σ aᵢ xᵢ`.
     pub a: [f64; 4],
     /// `v`, computed as accurately as the type allows.
     pub v: Vec3,
-    /// `qᵢ = Σ_k c_{k,i} P_k`.
-    pub q: [Vec3; 4],
-    /// `m_ij = Σ_kl c_{k,i} M_kl c_{l,j}`.
-    pub m: [[f64; 4]; 4],
-    /// `N`, the projector orthogonal to the features.
-    pub normal_projector: Matrix3<f64>,
+    curvature: Curvature,
+}
+
+/// What the Hessian needs beyond `a` and `v`: the free parameters' coefficients `c_k`,
+/// directions `D_k`, `M = G⁻¹`, and the normal projector `N`.
+#[derive(Clone, Copy, Debug)]
+enum Curvature {
+    /// Two points: no parameter, `N = I`.
+    Points,
+    /// Point and line: `c`, `D = −e`, `M = 1/‖e‖²`, `N = I − eeᵀ/‖e‖²`.
+    Line { c: [f64; 4], e: Vec3, ee: f64 },
+    /// Point and plane, or two lines: two parameters, `N = nnᵀ/‖n‖²`.
+    TwoParameters {
+        c: [[f64; 4]; 2],
+        d: [Vec3; 2],
+        minv: [[f64; 2]; 2],
+        n: Vec3,
+        nn: f64,
+    },
 }
 
 impl Envelope {
@@ -46,9 +60,7 @@ impl Envelope {
         Self {
             a,
             v: x[i] - x[j],
-            q: [Vec3::zeros(); 4],
-            m: [[0.0; 4]; 4],
-            normal_projector: Matrix3::identity(),
+            curvature: Curvature::Points,
         }
     }
 
@@ -68,14 +80,10 @@ impl Envelope {
         let mut c = [0.0; 4];
         c[e0] = 1.0;
         c[e1] = -1.0;
-        // M = 1/‖e‖², P = −e/‖e‖².
-        let pk = -e / ee;
         Self {
             a,
             v,
-            q: c.map(|ci| ci * pk),
-            m: outer(&c, &c, 1.0 / ee),
-            normal_projector: Matrix3::identity() - e * e.transpose() / ee,
+            curvature: Curvature::Line { c, e, ee },
         }
     }
 
@@ -107,8 +115,17 @@ impl Envelope {
         c2[t[2]] = -1.0;
         // G = [[e1·e1, e1·e2], [e1·e2, e2·e2]] (D = −e, signs cancel in G).
         let minv = [[g22 / nn, -g12 / nn], [-g12 / nn, g11 / nn]];
-        let d = [-e1, -e2];
-        Self::two_parameter(a, v, [c1, c2], d, minv, n * n.transpose() / nn)
+        Self {
+            a,
+            v,
+            curvature: Curvature::TwoParameters {
+                c: [c1, c2],
+                d: [-e1, -e2],
+                minv,
+                n,
+                nn,
+            },
+        }
     }
 
     /// The lines through `a0, a1` and `b0, b1`: `v = ((a0 − b0)·n)·n/‖n‖²` with
@@ -138,39 +155,16 @@ impl Envelope {
         ct[eb[1]] = -1.0;
         // G = [[u·u, −u·w], [−u·w, w·w]], det G = ‖n‖².
         let minv = [[ww / nn, uw / nn], [uw / nn, uu / nn]];
-        Self::two_parameter(a, v, [cs, ct], [u, -w], minv, n * n.transpose() / nn)
-    }
-
-    fn two_parameter(
-        a: [f64; 4],
-        v: Vec3,
-        c: [[f64; 4]; 2],
-        d: [Vec3; 2],
-        minv: [[f64; 2]; 2],
-        normal_projector: Matrix3<f64>,
-    ) -> Self {
-        let p = [
-            minv[0][0] * d[0] + minv[0][1] * d[1],
-            minv[1][0] * d[0] + minv[1][1] * d[1],
-        ];
-        let q = std::array::from_fn(|i| c[0][i] * p[0] + c[1][i] * p[1]);
-        let mut m = [[0.0; 4]; 4];
-        for (k, ck) in c.iter().enumerate() {
-            for (l, cl) in c.iter().enumerate() {
-                let mk = outer(ck, cl, minv[k][l]);
-                for i in 0..4 {
-                    for j in 0..4 {
-                        m[i][j] += mk[i][j];
-                    }
-                }
-            }
-        }
         Self {
             a,
             v,
-            q,
-            m,
-            normal_projector,
+            curvature: Curvature::TwoParameters {
+                c: [cs, ct],
+                d: [u, -w],
+                minv,
+                n,
+                nn,
+            },
         }
     }
 
@@ -186,18 +180,54 @@ impl Envelope {
         g
     }
 
+    /// `qᵢ`, `m_ij` and `N` of the module documentation.
+    fn curvature_terms(&self) -> ([Vec3; 4], [[f64; 4]; 4], Matrix3<f64>) {
+        match self.curvature {
+            Curvature::Points => ([Vec3::zeros(); 4], [[0.0; 4]; 4], Matrix3::identity()),
+            Curvature::Line { c, e, ee } => {
+                // M = 1/‖e‖², P = M·D = −e/‖e‖².
+                let pk = -e / ee;
+                (
+                    c.map(|ci| ci * pk),
+                    outer(&c, &c, 1.0 / ee),
+                    Matrix3::identity() - e * e.transpose() / ee,
+                )
+            }
+            Curvature::TwoParameters { c, d, minv, n, nn } => {
+                let p = [
+                    minv[0][0] * d[0] + minv[0][1] * d[1],
+                    minv[1][0] * d[0] + minv[1][1] * d[1],
+                ];
+                let q = std::array::from_fn(|i| c[0][i] * p[0] + c[1][i] * p[1]);
+                let m = std::array::from_fn(|i| {
+                    std::array::from_fn(|j| {
+                        let mut sum = 0.0;
+                        for k in 0..2 {
+                            for l in 0..2 {
+                                sum += c[k][i] * minv[k][l] * c[l][j];
+                            }
+                        }
+                        sum
+                    })
+                });
+                (q, m, n * n.transpose() / nn)
+            }
+        }
+    }
+
     /// `∇²d`, 12×12, from the formula in the module documentation. Exactly symmetric.
     pub fn hessian(&self) -> Matrix12 {
+        let (q, m, normal_projector) = self.curvature_terms();
         let mut h = Matrix12::zeros();
         let vvt = self.v * self.v.transpose();
         for i in 0..4 {
             for j in i..4 {
                 let (ai, aj) = (self.a[i], self.a[j]);
-                let block = 2.0 * ai * aj * self.normal_projector
+                let block = 2.0 * ai * aj * normal_projector
                     - 2.0
-                        * (self.m[i][j] * vvt
-                            + aj * self.v * self.q[i].transpose()
-                            + ai * self.q[j] * self.v.transpose());
+                        * (m[i][j] * vvt
+                            + aj * self.v * q[i].transpose()
+                            + ai * q[j] * self.v.transpose());
                 h.fixed_view_mut::<3, 3>(3 * i, 3 * j).copy_from(&block);
                 if i != j {
                     h.fixed_view_mut::<3, 3>(3 * j, 3 * i)
