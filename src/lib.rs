@@ -7,6 +7,7 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 pub mod bench;
+pub mod contact;
 pub mod geometry;
 pub mod model;
 pub mod nn;

@@ -1,0 +1,170 @@
+//! Candidates against brute force: nothing within the inflation distance is ever missed.
+
+use super::*;
+use crate::contact::distance::{edge_edge_distance, point_triangle_distance};
+use crate::contact::math::vertex;
+use crate::contact::test_scenes::{two_sheet_mesh, two_sheets};
+
+fn brute_force(
+    mesh: &ContactMesh,
+    x: &[f64],
+    within: f64,
+) -> (Vec<PointTriangleCandidate>, Vec<EdgeEdgeCandidate>) {
+    let w2 = within * within;
+    let mut pt = Vec::new();
+    for &v in mesh.vertices() {
+        for (f, tri) in mesh.faces().iter().enumerate() {
+            if tri.contains(&v) {
+                continue;
+            }
+            let p = vertex(x, v);
+            let [a, b, c] = tri.map(|t| vertex(x, t));
+            if point_triangle_distance(&p, &a, &b, &c) < w2 {
+                pt.push(PointTriangleCandidate {
+                    vertex: v,
+                    face: f as u32,
+                });
+            }
+        }
+    }
+    let mut ee = Vec::new();
+    let edges = mesh.edges();
+    for (i, &[a0, a1]) in edges.iter().enumerate() {
+        for (j, &[b0, b1]) in edges.iter().enumerate().skip(i + 1) {
+            if a0 == b0 || a0 == b1 || a1 == b0 || a1 == b1 {
+                continue;
+            }
+            let d = edge_edge_distance(
+                &vertex(x, a0),
+                &vertex(x, a1),
+                &vertex(x, b0),
+                &vertex(x, b1),
+            );
+            if d < w2 {
+                ee.push(EdgeEdgeCandidate {
+                    edge_a: i as u32,
+                    edge_b: j as u32,
+                });
+            }
+        }
+    }
+    (pt, ee)
+}
+
+#[test]
+fn static_candidates_contain_every_close_pair() {
+    let (x, faces) = two_sheets(9, 0.03, [0.013, -0.021], 0.3, 0.01, 7);
+    let mesh = two_sheet_mesh(&x, &faces);
+    let dhat = 0.05;
+    let c = Candidates::build(&mesh, &x, dhat).unwrap();
+    let (pt, ee) = brute_force(&mesh, &x, dhat);
+    assert!(!pt.is_empty() && !ee.is_empty());
+    for p in &pt {
+        assert!(c.point_triangle.binary_search(p).is_ok(), "missed {p:?}");
+    }
+    for e in &ee {
+        assert!(c.edge_edge.binary_search(e).is_ok(), "missed {e:?}");
+    }
+    // No pair shares a vertex.
+    for p in &c.point_triangle {
+        assert!(!faces[p.face as usize].contains(&p.vertex));
+    }
+    // Deterministic.
+    assert_eq!(Candidates::build(&mesh, &x, dhat).unwrap(), c);
+}
+
+#[test]
+fn swept_candidates_contain_every_pair_close_along_the_step() {
+    let (x, faces) = two_sheets(7, 0.2, [0.0, 0.0], 0.1, 0.02, 8);
+    let mesh = two_sheet_mesh(&x, &faces);
+    let n = x.len() / 3;
+    // The upper sheet moves down through the lower one.
+    let mut dx = vec![0.0; x.len()];
+    for v in n / 2..n {
+        dx[3 * v + 2] = -0.4;
+    }
+    let c = Candidates::build_swept(&mesh, &x, &dx, 0.0).unwrap();
+    for k in 0..=20 {
+        let t = k as f64 / 20.0;
+        let xt: Vec<f64> = x.iter().zip(&dx).map(|(a, b)| a + t * b).collect();
+        let (pt, ee) = brute_force(&mesh, &xt, 1e-3);
+        for p in &pt {
+            assert!(
+                c.point_triangle.binary_search(p).is_ok(),
+                "missed {p:?} at t = {t}"
+            );
+        }
+        for e in &ee {
+            assert!(
+                c.edge_edge.binary_search(e).is_ok(),
+                "missed {e:?} at t = {t}"
+            );
+        }
+    }
+}
+
+#[test]
+fn groups_that_may_not_touch_give_no_pairs() {
+    let (x, faces) = two_sheets(5, 0.01, [0.0, 0.0], 0.0, 0.0, 9);
+    let n = x.len() / 3;
+    let group: Vec<u16> = (0..n).map(|v| (v >= n / 2) as u16).collect();
+    let same = |a: u32, b: u32| group[a as usize] == group[b as usize];
+    let check = |matrix: &[Vec<bool>], want_same: bool| {
+        let mesh = ContactMesh::with_groups(&x, faces.clone(), group.clone(), matrix).unwrap();
+        let c = Candidates::build(&mesh, &x, 0.05).unwrap();
+        assert!(!c.is_empty());
+        for p in &c.point_triangle {
+            let f = faces[p.face as usize];
+            assert!(f.iter().all(|&t| same(p.vertex, t) == want_same), "{p:?}");
+        }
+        for e in &c.edge_edge {
+            let [a0, a1] = mesh.edges()[e.edge_a as usize];
+            let [b0, b1] = mesh.edges()[e.edge_b as usize];
+            assert!(
+                [a0, a1]
+                    .iter()
+                    .all(|&a| same(a, b0) == want_same && same(a, b1) == want_same)
+            );
+        }
+    };
+    // Each sheet with itself only, then the sheets only with each other.
+    check(&[vec![true, false], vec![false, true]], true);
+    check(&[vec![false, true], vec![true, false]], false);
+    assert!(
+        ContactMesh::with_groups(
+            &x,
+            faces.clone(),
+            group.clone(),
+            &[vec![true, false], vec![true, true]]
+        )
+        .is_err()
+    );
+}
+
+#[test]
+fn bad_inputs_are_typed_errors() {
+    let (x, faces) = two_sheets(3, 0.1, [0.0, 0.0], 0.0, 0.0, 1);
+    let mesh = two_sheet_mesh(&x, &faces);
+    assert!(matches!(
+        Candidates::build(&mesh, &x[1..], 0.1),
+        Err(ContactError::PositionsLength { .. })
+    ));
+    let mut bad = x.clone();
+    bad[4] = f64::NAN;
+    assert_eq!(
+        Candidates::build(&mesh, &bad, 0.1),
+        Err(ContactError::NonFinite(1))
+    );
+    assert!(matches!(
+        Candidates::build(&mesh, &x, -1.0),
+        Err(ContactError::InvalidParameter(_))
+    ));
+    assert!(matches!(
+        ContactMesh::new(&x, vec![[0, 1, 99]]),
+        Err(ContactError::InvalidMesh(_))
+    ));
+    assert!(matches!(
+        ContactMesh::new(&x, vec![[0, 1, 1]]),
+        Err(ContactError::InvalidMesh(_))
+    ));
+}

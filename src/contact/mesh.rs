@@ -1,0 +1,189 @@
+//! The contact surface: triangles over the simulation's vertices, their unique edges, the
+//! vertices they use, optional groups that may not touch each other, and the rest-shape data
+//! the barrier needs (the edge–edge mollifier thresholds).
+
+use super::ContactError;
+use super::math::vertex;
+
+/// Triangles (and their edges and vertices) that take part in contact. Vertex indices are the
+/// simulation's, so positions are the solver's interleaved `[x0, y0, z0, …]` for all
+/// `vertex_count` vertices; vertices no triangle uses are ignored.
+#[derive(Clone, Debug)]
+pub struct ContactMesh {
+    vertex_count: usize,
+    faces: Vec<[u32; 3]>,
+    /// Unique edges `[a, b]` with `a < b`, sorted.
+    edges: Vec<[u32; 2]>,
+    /// The vertices the faces use, sorted.
+    vertices: Vec<u32>,
+    /// `‖e‖²` of every edge at rest (cm²), for `ε_x`.
+    rest_edge_length2: Vec<f64>,
+    /// Group of every simulation vertex (0 when no groups are given).
+    group: Vec<u16>,
+    /// `can_touch[g·groups + h]`.
+    can_touch: Vec<bool>,
+    groups: usize,
+}
+
+impl ContactMesh {
+    /// A contact surface in which every pair of primitives that shares no vertex may touch
+    /// (self-contact included: the upper and lower lip are usually one connected surface).
+    ///
+    /// `rest` is interleaved (3 values per simulation vertex, cm). Fails on an index out of
+    /// range, a triangle repeating a vertex, or a non-finite rest position.
+    pub fn new(rest: &[f64], faces: Vec<[u32; 3]>) -> Result<Self, ContactError> {
+        let n = rest.len() / 3;
+        Self::with_groups(rest, faces, vec![0; n], &[vec![true]])
+    }
+
+    /// Like [`ContactMesh::new`], with a group per simulation vertex and a symmetric matrix
+    /// `can_touch[g][h]`: a pair is considered only if every vertex of one primitive may touch
+    /// every vertex of the other (e.g. upper teeth vs lower teeth off, lips vs teeth on).
+    pub fn with_groups(
+        rest: &[f64],
+        faces: Vec<[u32; 3]>,
+        group: Vec<u16>,
+        can_touch: &[Vec<bool>],
+    ) -> Result<Self, ContactError> {
+        if !rest.len().is_multiple_of(3) {
+            return Err(ContactError::PositionsLength {
+                expected: rest.len() - rest.len() % 3,
+                got: rest.len(),
+            });
+        }
+        let vertex_count = rest.len() / 3;
+        if vertex_count > u32::MAX as usize {
+            return Err(ContactError::InvalidMesh("too many vertices".into()));
+        }
+        if let Some(i) =
+            (0..vertex_count).find(|&i| !rest[3 * i..3 * i + 3].iter().all(|v| v.is_finite()))
+        {
+            return Err(ContactError::NonFinite(i));
+        }
+        if group.len() != vertex_count {
+            return Err(ContactError::InvalidMesh(format!(
+                "{} vertex groups for {vertex_count} vertices",
+                group.len()
+            )));
+        }
+        let groups = can_touch.len();
+        if groups == 0 || can_touch.iter().any(|row| row.len() != groups) {
+            return Err(ContactError::InvalidMesh(
+                "can_touch must be a non-empty square matrix".into(),
+            ));
+        }
+        for (g, row) in can_touch.iter().enumerate() {
+            if let Some(h) = (0..groups).find(|&h| row[h] != can_touch[h][g]) {
+                return Err(ContactError::InvalidMesh(format!(
+                    "can_touch is not symmetric at ({g}, {h})"
+                )));
+            }
+        }
+        if let Some(&g) = group.iter().find(|&&g| g as usize >= groups) {
+            return Err(ContactError::InvalidMesh(format!(
+                "vertex group {g} out of range"
+            )));
+        }
+        for (f, tri) in faces.iter().enumerate() {
+            if tri.iter().any(|&v| v as usize >= vertex_count) {
+                return Err(ContactError::InvalidMesh(format!(
+                    "face {f} {tri:?} indexes past {vertex_count} vertices"
+                )));
+            }
+            if tri[0] == tri[1] || tri[1] == tri[2] || tri[2] == tri[0] {
+                return Err(ContactError::InvalidMesh(format!(
+                    "face {f} {tri:?} repeats a vertex"
+                )));
+            }
+        }
+        let mut edges: Vec<[u32; 2]> = faces
+            .iter()
+            .flat_map(|t| [[t[0], t[1]], [t[1], t[2]], [t[2], t[0]]])
+            .map(|[a, b]| [a.min(b), a.max(b)])
+            .collect();
+        edges.sort_unstable();
+        edges.dedup();
+        let mut vertices: Vec<u32> = faces.iter().flatten().copied().collect();
+        vertices.sort_unstable();
+        vertices.dedup();
+        let rest_edge_length2 = edges
+            .iter()
+            .map(|&[a, b]| (vertex(rest, a) - vertex(rest, b)).norm_squared())
+            .collect();
+        Ok(Self {
+            vertex_count,
+            faces,
+            edges,
+            vertices,
+            rest_edge_length2,
+            group,
+            can_touch: can_touch.iter().flatten().copied().collect(),
+            groups,
+        })
+    }
+
+    /// Number of simulation vertices (positions have `3·vertex_count` values).
+    pub fn vertex_count(&self) -> usize {
+        self.vertex_count
+    }
+
+    pub fn faces(&self) -> &[[u32; 3]] {
+        &self.faces
+    }
+
+    /// Unique edges `[a, b]`, `a < b`, sorted.
+    pub fn edges(&self) -> &[[u32; 2]] {
+        &self.edges
+    }
+
+    /// The vertices used by the faces, sorted.
+    pub fn vertices(&self) -> &[u32] {
+        &self.vertices
+    }
+
+    /// The edge–edge mollifier threshold `ε_x = 10⁻³·‖ea‖²·‖eb‖²` at rest (cm⁴).
+    pub fn mollifier_threshold(&self, ea: usize, eb: usize) -> f64 {
+        1e-3 * self.rest_edge_length2[ea] * self.rest_edge_length2[eb]
+    }
+
+    /// Whether vertices `a` and `b` may be in contact (by their groups).
+    #[inline]
+    pub fn can_touch(&self, a: u32, b: u32) -> bool {
+        let (g, h) = (
+            self.group[a as usize] as usize,
+            self.group[b as usize] as usize,
+        );
+        self.can_touch[g * self.groups + h]
+    }
+
+    /// Diagonal of the bounding box of the contact vertices at `x` (cm), the scene size that
+    /// the adaptive stiffness uses; 0 for an empty mesh. `x` must have passed
+    /// [`ContactMesh::check_positions`].
+    pub fn bbox_diagonal(&self, x: &[f64]) -> f64 {
+        let mut pts = self.vertices.iter().map(|&v| vertex(x, v));
+        let Some(first) = pts.next() else {
+            return 0.0;
+        };
+        let (min, max) = pts.fold((first, first), |(lo, hi), p| (lo.inf(&p), hi.sup(&p)));
+        (max - min).norm()
+    }
+
+    /// Checks interleaved positions (or displacements) for this mesh: length and finiteness of
+    /// the contact vertices.
+    pub fn check_positions(&self, x: &[f64]) -> Result<(), ContactError> {
+        if x.len() != 3 * self.vertex_count {
+            return Err(ContactError::PositionsLength {
+                expected: 3 * self.vertex_count,
+                got: x.len(),
+            });
+        }
+        if let Some(&v) = self
+            .vertices
+            .iter()
+            .find(|&&v| !vertex(x, v).iter().all(|c| c.is_finite()))
+        {
+            return Err(ContactError::NonFinite(v as usize));
+        }
+        Ok(())
+    }
+}
