@@ -34,6 +34,27 @@ impl Box3 {
         }
     }
 
+    /// The smallest box holding `points` (at least one), grown by `margin` on every side.
+    pub fn around_iter(points: impl IntoIterator<Item = Point3<f64>>, margin: f64) -> Self {
+        let mut it = points.into_iter();
+        let first = it.next().unwrap_or_else(Point3::origin);
+        let (mut min, mut max) = (first, first);
+        for p in it {
+            min = min.inf(&p);
+            max = max.sup(&p);
+        }
+        let m = nalgebra::Vector3::repeat(margin);
+        Self {
+            min: min - m,
+            max: max + m,
+        }
+    }
+
+    /// Whether two boxes overlap (touching counts).
+    pub fn overlaps(&self, other: &Box3) -> bool {
+        (0..3).all(|k| self.min[k] <= other.max[k] && other.min[k] <= self.max[k])
+    }
+
     /// The f32 box containing this one.
     fn to_parry(self) -> Aabb {
         let down = |x: f64| {
@@ -53,22 +74,26 @@ impl Box3 {
 
 /// A BVH over numbered boxes (leaf `i` is the `i`-th box given).
 pub struct BoxTree {
-    bvh: Bvh,
+    /// `None` for an empty set of boxes (parry's tree needs at least one leaf).
+    bvh: Option<Bvh>,
 }
 
 impl BoxTree {
     pub fn new(boxes: &[Box3]) -> Self {
         let leaves: Vec<Aabb> = boxes.iter().map(|b| b.to_parry()).collect();
         Self {
-            bvh: Bvh::from_leaves(BvhBuildStrategy::Binned, &leaves),
+            bvh: (!leaves.is_empty()).then(|| Bvh::from_leaves(BvhBuildStrategy::Binned, &leaves)),
         }
     }
 
-    /// Indices of the boxes that overlap `query` (touching counts), in the tree's order.
+    /// Indices of the boxes that overlap `query` (touching counts), ascending, into `out`
+    /// (cleared first).
     pub fn overlapping(&self, query: &Box3, out: &mut Vec<u32>) {
         out.clear();
-        let q = query.to_parry();
-        out.extend(self.bvh.intersect_aabb(&q));
+        if let Some(bvh) = &self.bvh {
+            out.extend(bvh.intersect_aabb(&query.to_parry()));
+        }
+        out.sort_unstable();
     }
 }
 
@@ -116,5 +141,12 @@ mod tests {
                 .collect();
             assert_eq!(found, expected);
         }
+    }
+
+    #[test]
+    fn an_empty_tree_finds_nothing() {
+        let mut found = vec![7];
+        BoxTree::new(&[]).overlapping(&Box3::around(&[Point3::origin()], 1.0), &mut found);
+        assert!(found.is_empty());
     }
 }

@@ -5,9 +5,10 @@
 use rayon::prelude::*;
 
 use super::ContactError;
-use super::broad_phase::{Aabb, BoxTree};
 use super::math::vertex;
 use super::mesh::ContactMesh;
+use crate::geometry::bvh::{Box3, BoxTree};
+use nalgebra::Point3;
 
 /// A vertex and a face that does not contain it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
@@ -40,7 +41,10 @@ impl Candidates {
         mesh.check_positions(x)?;
         check_inflation(inflation)?;
         Ok(Self::from_boxes(mesh, |ids| {
-            Aabb::around_iter(ids.iter().map(|&i| vertex(x, i)), 0.5 * inflation)
+            Box3::around_iter(
+                ids.iter().map(|&i| Point3::from(vertex(x, i))),
+                0.5 * inflation,
+            )
         }))
     }
 
@@ -59,10 +63,10 @@ impl Candidates {
         check_inflation(inflation)?;
         Ok(Self::from_boxes(mesh, |ids| {
             let ends = ids.iter().flat_map(|&i| {
-                let p = vertex(x, i);
+                let p = Point3::from(vertex(x, i));
                 [p, p + vertex(dx, i)]
             });
-            Aabb::around_iter(ends, 0.5 * inflation)
+            Box3::around_iter(ends, 0.5 * inflation)
         }))
     }
 
@@ -75,10 +79,10 @@ impl Candidates {
         self.len() == 0
     }
 
-    fn from_boxes(mesh: &ContactMesh, box_of: impl Fn(&[u32]) -> Aabb + Sync) -> Self {
-        let face_boxes: Vec<Aabb> = mesh.faces().par_iter().map(|f| box_of(f)).collect();
-        let edge_boxes: Vec<Aabb> = mesh.edges().par_iter().map(|e| box_of(e)).collect();
-        let vertex_boxes: Vec<Aabb> = mesh
+    fn from_boxes(mesh: &ContactMesh, box_of: impl Fn(&[u32]) -> Box3 + Sync) -> Self {
+        let face_boxes: Vec<Box3> = mesh.faces().par_iter().map(|f| box_of(f)).collect();
+        let edge_boxes: Vec<Box3> = mesh.edges().par_iter().map(|e| box_of(e)).collect();
+        let vertex_boxes: Vec<Box3> = mesh
             .vertices()
             .par_iter()
             .map(|v| box_of(std::slice::from_ref(v)))
