@@ -160,8 +160,6 @@ pub enum BuildError {
     Jaw(#[from] crate::rig::jaw::JawError),
     #[error("building the tissue layer: {0}")]
     Shell(#[from] ShellError),
-    #[error("the tissue layer still folds under {0} triangles after thinning")]
-    StillFolded(usize),
     #[error("the simulation mesh is unusable: {0}")]
     Simulator(#[from] crate::sim::SimError),
 }
@@ -205,8 +203,8 @@ pub fn build_face(
         &|p| skin_index.closest_point(p).map_or(*p, |(q, _)| q),
     );
 
-    // 3. Only the skin that the expression shapes move (and a margin, pinned to the skull)
-    //    gets tissue: the rest of the face rides on the skull.
+    // 3. Only the skin that the expression shapes move (and a margin, pinned at its border to
+    //    the bone its skin follows) gets tissue: the rest of the face rides on the skull.
     let pivot = estimate_pivot(rig, identity)?;
     report.jaw_pivot_rms_motion = pivot.rms_pivot_motion;
     let motion = BoneMotion::new(rig, identity, pivot.pivot, settings)?;
@@ -342,7 +340,7 @@ pub fn build_face(
                 t,
                 gather(&thickness, &kept),
                 gather(&origin, &kept),
-                gather(&skin_border, &kept),
+                gather(&pinned, &kept),
             )
         };
     // Untangle the crowded spots: smooth the tissue's interior (the skin layer stays put).
@@ -374,12 +372,11 @@ pub fn build_face(
     // 6. Attachments: the inner layer under skin that rides on a bone; the whole column at
     //    the border of the simulated region, where it meets skin that rides on a bone (the
     //    skull, or the jaw under the chin).
-    let border = pinned;
     let mut bone: Vec<Option<Bone>> = (0..positions.len())
         .map(|v| {
             motion
                 .bone_of(origin[v])
-                .or(border[v].then(|| motion.nearest_bone(origin[v])))
+                .or(pinned[v].then(|| motion.nearest_bone(origin[v])))
         })
         .collect();
     // Tissue between skull and jaw must stay free to stretch: where the two bones' regions
@@ -390,7 +387,7 @@ pub fn build_face(
             let has = |b: Bone| t.iter().any(|&v| bone[v as usize] == Some(b));
             if has(Bone::Skull) && has(Bone::Jaw) {
                 for &v in t {
-                    if !border[v as usize] {
+                    if !pinned[v as usize] {
                         next[v as usize] = None;
                     }
                 }
@@ -401,7 +398,7 @@ pub fn build_face(
     let mut attachments = Attachments::default();
     for (v, b) in bone.iter().enumerate() {
         if let Some(b) = *b {
-            let layers = if border[v] {
+            let layers = if pinned[v] {
                 0..=shell.layers
             } else {
                 shell.layers..=shell.layers
