@@ -24,6 +24,22 @@ pub enum CollisionKind {
     EdgeEdge,
 }
 
+impl CollisionKind {
+    /// The squared distance (cm²) of a stencil, its closest-feature type classified anew.
+    pub fn distance_squared(self, p: &[Vec3; 4]) -> f64 {
+        match self {
+            CollisionKind::PointTriangle => {
+                let t = point_triangle_distance_type(&p[0], &p[1], &p[2], &p[3]);
+                point_triangle_distance_typed(&p[0], &p[1], &p[2], &p[3], t)
+            }
+            CollisionKind::EdgeEdge => {
+                let t = edge_edge_distance_type(&p[0], &p[1], &p[2], &p[3]);
+                edge_edge_distance_typed(&p[0], &p[1], &p[2], &p[3], t)
+            }
+        }
+    }
+}
+
 /// The closest-feature type of a collision.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum CollisionType {
@@ -53,17 +69,7 @@ impl Collision {
 
     /// The squared distance (cm²) at positions `x`, the closest-feature type classified anew.
     pub fn distance_squared_at(&self, x: &[f64]) -> f64 {
-        let p = self.positions(x);
-        match self.kind {
-            CollisionKind::PointTriangle => {
-                let t = point_triangle_distance_type(&p[0], &p[1], &p[2], &p[3]);
-                point_triangle_distance_typed(&p[0], &p[1], &p[2], &p[3], t)
-            }
-            CollisionKind::EdgeEdge => {
-                let t = edge_edge_distance_type(&p[0], &p[1], &p[2], &p[3]);
-                edge_edge_distance_typed(&p[0], &p[1], &p[2], &p[3], t)
-            }
-        }
+        self.kind.distance_squared(&self.positions(x))
     }
 }
 

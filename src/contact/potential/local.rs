@@ -15,25 +15,10 @@ use crate::contact::distance::mollifier::{
 };
 use crate::contact::distance::{
     edge_edge_distance_and_gradient, edge_edge_distance_derivatives, edge_edge_distance_type,
-    edge_edge_distance_typed, point_triangle_distance_and_gradient,
-    point_triangle_distance_derivatives, point_triangle_distance_type,
-    point_triangle_distance_typed,
+    point_triangle_distance_and_gradient, point_triangle_distance_derivatives,
+    point_triangle_distance_type,
 };
 use crate::contact::math::{Matrix12, Vec3, Vector12};
-
-/// Squared distance with the type classified at `p`.
-fn distance(kind: CollisionKind, p: &[Vec3; 4]) -> f64 {
-    match kind {
-        CollisionKind::PointTriangle => {
-            let t = point_triangle_distance_type(&p[0], &p[1], &p[2], &p[3]);
-            point_triangle_distance_typed(&p[0], &p[1], &p[2], &p[3], t)
-        }
-        CollisionKind::EdgeEdge => {
-            let t = edge_edge_distance_type(&p[0], &p[1], &p[2], &p[3]);
-            edge_edge_distance_typed(&p[0], &p[1], &p[2], &p[3], t)
-        }
-    }
-}
 
 fn distance_gradient(kind: CollisionKind, p: &[Vec3; 4]) -> (f64, Vector12) {
     match kind {
@@ -72,7 +57,7 @@ fn mollified(c: &Collision, p: &[Vec3; 4]) -> Option<f64> {
 
 /// `m·b(d, d̂²)` (unit stiffness), `+∞` at `d ≤ 0`.
 pub fn value(c: &Collision, p: &[Vec3; 4], dhat2: f64) -> f64 {
-    let b = barrier(distance(c.kind, p), dhat2);
+    let b = barrier(c.kind.distance_squared(p), dhat2);
     match mollified(c, p) {
         Some(cross) if b != 0.0 => mollifier(cross, c.eps_x) * b,
         _ => b,
