@@ -45,6 +45,9 @@ pub struct RepairSettings {
     /// How far (along the surface, cm) a correction spreads to smooth the displacement.
     pub smoothing_radius: f64,
     pub max_iterations: usize,
+    /// Enforce the gap wherever non-adjacent parts are closer than `d̂` (for the rig's closed
+    /// lips: the whole lip line), not only at the former intersections.
+    pub whole_surface: bool,
     /// The iteration works on the triangles within this distance of the intersecting
     /// vertices (cm) — far more than any vertex moves; the result is checked on the whole
     /// surface.
@@ -61,6 +64,7 @@ impl RepairSettings {
             margin: 0.1,
             smoothing_radius: 4.0 * d_hat,
             max_iterations: 100,
+            whole_surface: true,
             working_radius: (20.0 * d_hat).max(1.0),
         }
     }
@@ -107,8 +111,9 @@ pub enum RepairError {
 }
 
 /// Repairs `positions` (full rig vertex array) so that `surface` has no self-intersection and
-/// a gap ≥ `d̂` at its former intersections (module doc). Returns the repaired positions and
-/// a report; a surface without intersections is returned unchanged.
+/// a gap ≥ `d̂` at its former intersections, and with [`RepairSettings::whole_surface`]
+/// wherever non-adjacent parts were closer than `d̂` (module doc). Returns the repaired
+/// positions and a report; a surface with neither is returned unchanged.
 pub fn repair_self_intersections(
     positions: &[Point3<f64>],
     surface: &SurfaceTopology,
@@ -127,7 +132,24 @@ pub fn repair_self_intersections(
         exclusion_radius: settings.exclusion_radius,
     };
     let initial = self_intersections(positions, surface);
-    let watched = vertices_of(surface, &initial);
+    let mut watched = vertices_of(surface, &initial);
+    if settings.whole_surface {
+        let everything = surface.vertices();
+        for gap in close_pairs(positions, surface, &everything, &query)
+            .into_iter()
+            .filter(|g| g.distance < d_hat)
+        {
+            match gap.witness {
+                GapWitness::PointTriangle { vertex, triangle } => {
+                    watched.push(vertex);
+                    watched.extend(surface_triangle(surface, triangle));
+                }
+                GapWitness::EdgeEdge { a, b } => watched.extend(a.into_iter().chain(b)),
+            }
+        }
+        watched.sort_unstable();
+        watched.dedup();
+    }
     let part = working_part(positions, surface, &watched, settings.working_radius);
     let adjacency = part.adjacency();
     let normals = vertex_normals(positions, &part);
@@ -516,6 +538,17 @@ mod tests {
             assert!(report.intersections_before > 0);
             assert_eq!(report.intersections_after, 0);
             assert_eq!(report.gap_below_d_hat, None);
+            // Nowhere on the skin are non-adjacent parts closer than d̂ (the whole lip line).
+            let query = GapQuery {
+                search_radius: d_hat,
+                exclusion_radius: settings.exclusion_radius,
+            };
+            let everywhere = super::super::gap::min_gap(&fixed, &skin, &skin.vertices(), &query);
+            assert!(
+                everywhere.as_ref().is_none_or(|g| g.distance >= d_hat),
+                "{identity:?}: {:?}",
+                everywhere.map(|g| g.distance)
+            );
             // Skin, head and mouth socket together stay free of intersections.
             assert!(self_intersections(&fixed, &around_mouth).is_empty());
             // Only the lips move, and by less than a millimetre.
