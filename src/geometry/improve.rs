@@ -1,12 +1,18 @@
 //! Tetrahedral mesh improvement by "smart" Laplacian smoothing (Freitag, Jones & Plassmann
 //! 1995): each movable vertex tries the centroid of its neighbours (and points on the way
-//! there) and moves only if the worst dihedral angle of the elements around it gets better.
+//! there, toward the apex that would make its worst element regular, and for poor spots a
+//! compass search) and moves only if the worst dihedral angle of the elements around it gets
+//! better.
 //! Elements never invert and the worst angle around a vertex never decreases.
 
 use nalgebra::Point3;
 
 use super::shell::dihedral_angles;
 use super::tet_mesh::TetMesh;
+
+/// Vertices whose worst incident dihedral angle stays below this (degrees) also get a compass
+/// search (small steps along ±x, ±y, ±z at three scales).
+const COMPASS_BELOW_DEG: f64 = 15.0;
 
 /// What an improvement pass did.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -74,6 +80,27 @@ pub fn smart_smooth(mesh: &mut TetMesh, movable: &[bool], sweeps: usize) -> Impr
                     let q = worst(mesh, &elements_of[v]);
                     if q > best.0 {
                         best = (q, mesh.vertices[v]);
+                    }
+                }
+            }
+            // Where the worst element is still poor, a compass search around the best point.
+            if best.0 < COMPASS_BELOW_DEG {
+                let scale = neighbours[v]
+                    .iter()
+                    .map(|&w| (mesh.vertices[w as usize] - original).norm())
+                    .sum::<f64>()
+                    / neighbours[v].len() as f64;
+                for fraction in [0.2, 0.1, 0.05] {
+                    for axis in 0..3 {
+                        for sign in [-1.0, 1.0] {
+                            let mut step = nalgebra::Vector3::zeros();
+                            step[axis] = sign * fraction * scale;
+                            mesh.vertices[v] = best.1 + step;
+                            let q = worst(mesh, &elements_of[v]);
+                            if q > best.0 {
+                                best = (q, mesh.vertices[v]);
+                            }
+                        }
                     }
                 }
             }
