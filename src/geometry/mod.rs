@@ -9,5 +9,6 @@ pub mod query;
 pub mod remesh;
 pub mod shell;
 pub mod tet_mesh;
+pub mod triangles;
 
 pub use tet_mesh::{MeshError, TetMesh};

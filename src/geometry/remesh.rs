@@ -12,6 +12,8 @@ use std::collections::BTreeMap;
 
 use nalgebra::{Point3, Vector3};
 
+use super::triangles::{border_vertices, compact, gather};
+
 /// A triangle surface being remeshed.
 #[derive(Clone, Debug)]
 pub struct Surface {
@@ -51,7 +53,7 @@ pub fn remesh(
         flip_edges(&mut s);
         relax(&mut s, project, &project_border);
     }
-    compact(&mut s);
+    compact_surface(&mut s);
     s
 }
 
@@ -65,17 +67,6 @@ fn edge_map(triangles: &[[u32; 3]]) -> BTreeMap<(u32, u32), Vec<usize>> {
         }
     }
     edges
-}
-
-fn border_vertices(s: &Surface) -> Vec<bool> {
-    let mut border = vec![false; s.vertices.len()];
-    for ((a, b), tris) in edge_map(&s.triangles) {
-        if tris.len() == 1 {
-            border[a as usize] = true;
-            border[b as usize] = true;
-        }
-    }
-    border
 }
 
 /// Splits every edge longer than `high` at its midpoint, repeatedly, with the conforming
@@ -163,7 +154,7 @@ fn normal(p: [Point3<f64>; 3]) -> Vector3<f64> {
 /// condition holds, no new edge exceeds `high`, no triangle flips or degenerates, and borders
 /// are respected (see the module docs).
 fn collapse_short_edges(s: &mut Surface, low: f64, high: f64) {
-    let border = border_vertices(s);
+    let border = border_vertices(&s.triangles, s.vertices.len());
     let border_edges: std::collections::BTreeSet<(u32, u32)> = edge_map(&s.triangles)
         .into_iter()
         .filter(|(_, t)| t.len() == 1)
@@ -276,7 +267,7 @@ fn collapse_short_edges(s: &mut Surface, low: f64, high: f64) {
 /// Flips interior edges when that brings the four vertices' valences closer to 6 (4 on a
 /// border), unless the flip would fold the surface.
 fn flip_edges(s: &mut Surface) {
-    let border = border_vertices(s);
+    let border = border_vertices(&s.triangles, s.vertices.len());
     let mut valence = vec![0i32; s.vertices.len()];
     for (a, b) in edge_map(&s.triangles).into_keys() {
         valence[a as usize] += 1;
@@ -434,19 +425,10 @@ fn closest_on_segments(segments: &[[Point3<f64>; 2]], p: &Point3<f64>) -> Point3
 }
 
 /// Drops unreferenced vertices and renumbers.
-fn compact(s: &mut Surface) {
-    let mut map = vec![u32::MAX; s.vertices.len()];
-    let mut vertices = Vec::new();
-    for tri in &mut s.triangles {
-        for v in tri.iter_mut() {
-            if map[*v as usize] == u32::MAX {
-                map[*v as usize] = vertices.len() as u32;
-                vertices.push(s.vertices[*v as usize]);
-            }
-            *v = map[*v as usize];
-        }
-    }
-    s.vertices = vertices;
+fn compact_surface(s: &mut Surface) {
+    let (triangles, kept) = compact(&s.triangles, s.vertices.len());
+    s.vertices = gather(&s.vertices, &kept);
+    s.triangles = triangles;
 }
 
 /// Smallest interior angle of every triangle, degrees.

@@ -20,6 +20,7 @@ use crate::geometry::improve::{ImproveReport, smart_smooth};
 use crate::geometry::query::TriangleIndex;
 use crate::geometry::remesh::{RemeshSettings, Surface, min_angles, remesh};
 use crate::geometry::shell::{ShellError, extrude, quality, smooth_directions, vertex_normals};
+use crate::geometry::triangles::{border_vertices, compact, gather, used_count};
 use crate::rig::jaw::{estimate_pivot, fit_rigid};
 use crate::rig::repair::{RepairSettings, repair_self_intersections};
 use crate::rig::surface::{EdgeSet, SurfaceTopology};
@@ -495,57 +496,6 @@ fn area_ratio(shell: &crate::geometry::shell::Shell, t: &[u32; 3]) -> f64 {
     };
     let outer = normal(0);
     normal(shell.layers).dot(&outer) / outer.norm_squared()
-}
-
-/// Renumbers the vertices the triangles use, in order of first use: the new triangles and,
-/// for each new vertex, its old index (to carry per-vertex data along).
-fn compact(triangles: &[[u32; 3]], vertex_count: usize) -> (Vec<[u32; 3]>, Vec<usize>) {
-    let mut map = vec![u32::MAX; vertex_count];
-    let mut kept = Vec::new();
-    let triangles = triangles
-        .iter()
-        .map(|t| {
-            t.map(|v| {
-                if map[v as usize] == u32::MAX {
-                    map[v as usize] = kept.len() as u32;
-                    kept.push(v as usize);
-                }
-                map[v as usize]
-            })
-        })
-        .collect();
-    (triangles, kept)
-}
-
-fn gather<T: Copy>(values: &[T], kept: &[usize]) -> Vec<T> {
-    kept.iter().map(|&v| values[v]).collect()
-}
-
-/// How many distinct vertices the triangles use.
-fn used_count(triangles: &[[u32; 3]]) -> usize {
-    let mut v: Vec<u32> = triangles.iter().flatten().copied().collect();
-    v.sort_unstable();
-    v.dedup();
-    v.len()
-}
-
-/// Vertices on the border of a triangle surface.
-fn border_vertices(triangles: &[[u32; 3]], n: usize) -> Vec<bool> {
-    let mut edges = std::collections::BTreeMap::new();
-    for t in triangles {
-        for i in 0..3 {
-            let (a, b) = (t[i].min(t[(i + 1) % 3]), t[i].max(t[(i + 1) % 3]));
-            *edges.entry((a, b)).or_insert(0) += 1;
-        }
-    }
-    let mut border = vec![false; n];
-    for ((a, b), count) in edges {
-        if count == 1 {
-            border[a as usize] = true;
-            border[b as usize] = true;
-        }
-    }
-    border
 }
 
 /// Tissue thickness under each skin vertex: up to `max_thickness`, stopping just short of the
