@@ -57,16 +57,19 @@ impl Embedding {
         self.elements
             .iter()
             .zip(&self.weights)
-            .map(|(&e, w)| {
-                let mut p = Vector3::zeros();
-                for (corner, &v) in tets[e as usize].iter().enumerate() {
-                    let i = 3 * v as usize;
-                    p += Vector3::new(x[i], x[i + 1], x[i + 2]) * w[corner];
-                }
-                Point3::from(p)
-            })
+            .map(|(&e, w)| interpolate(&tets[e as usize], w, x))
             .collect()
     }
+}
+
+/// `Σᵢ wᵢ·xᵢ` over a tetrahedron's vertices, for interleaved mesh positions `x`.
+pub fn interpolate(tet: &[u32; 4], weights: &[f64; 4], x: &[f64]) -> Point3<f64> {
+    let mut p = Vector3::zeros();
+    for (&v, w) in tet.iter().zip(weights) {
+        let i = 3 * v as usize;
+        p += Vector3::new(x[i], x[i + 1], x[i + 2]) * *w;
+    }
+    Point3::from(p)
 }
 
 /// Barycentric coordinates of `p` in tetrahedron `t` (unclamped).

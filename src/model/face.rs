@@ -9,6 +9,7 @@ use serde::{Deserialize, Serialize};
 use super::build::BuildReport;
 use super::file::{self, FileError, Format};
 use crate::geometry::TetMesh;
+use crate::geometry::embedding::interpolate;
 use crate::geometry::shell::MeshQuality;
 use crate::sim::{Attachments, Bone, SimConfig, SimError, Simulator};
 
@@ -75,12 +76,7 @@ impl FaceModel {
             .zip(&self.render.rest)
             .map(|(binding, rest)| match binding {
                 Binding::Embedded { element, weights } => {
-                    let mut p = nalgebra::Vector3::zeros();
-                    for (corner, &v) in self.mesh.tets[*element as usize].iter().enumerate() {
-                        let i = 3 * v as usize;
-                        p += nalgebra::Vector3::new(x[i], x[i + 1], x[i + 2]) * weights[corner];
-                    }
-                    Point3::from(p)
+                    interpolate(&self.mesh.tets[*element as usize], weights, x)
                 }
                 Binding::Rigid(bone) => bones.target(*bone, &self.jaw_pivot, rest),
             })
