@@ -35,7 +35,7 @@ use facesim::contact::distance::{
     point_triangle_distance_type, point_triangle_distance_typed,
 };
 use facesim::contact::{
-    BarrierPotential, CcdOptions, Collisions, ContactMesh, HessianBlock, Projection, barrier,
+    BarrierPotential, CcdOptions, Collisions, ContactMesh, Projection, assemble_dense, barrier,
     barrier_first_derivative, barrier_second_derivative, ccd,
 };
 use nalgebra::Vector3;
@@ -464,23 +464,6 @@ fn rows12(h: &nalgebra::SMatrix<f64, 12, 12>) -> Vec<f64> {
     (0..12)
         .flat_map(|r| (0..12).map(move |c| h[(r, c)]))
         .collect()
-}
-
-fn dense(blocks: &[HessianBlock], n: usize) -> Vec<f64> {
-    let mut h = vec![0.0; n * n];
-    for b in blocks {
-        for (i, &vi) in b.vertices.iter().enumerate() {
-            for (j, &vj) in b.vertices.iter().enumerate() {
-                for r in 0..3 {
-                    for c in 0..3 {
-                        h[(3 * vi as usize + r) * n + 3 * vj as usize + c] +=
-                            b.matrix[(3 * i + r, 3 * j + c)];
-                    }
-                }
-            }
-        }
-    }
-    h
 }
 
 struct CcdCase {
@@ -969,14 +952,14 @@ fn contact_matches_ipctk() {
         "two sheets",
         rel_err(&pot.gradient(&set, &sx).unwrap(), &floats(&rp["gradient"])),
     );
-    let h = dense(&pot.hessian(&set, &sx, Projection::None).unwrap(), n);
+    let h = assemble_dense(&pot.hessian(&set, &sx, Projection::None).unwrap(), n);
     tally.add(
         "potential Hessian",
         Class::Regular,
         "two sheets",
         rel_err(&h, &floats(&rp["hessian"])),
     );
-    let h = dense(
+    let h = assemble_dense(
         &pot.hessian(&set, &sx, Projection::ClampEigenvalues)
             .unwrap(),
         n,

@@ -37,7 +37,9 @@ pub use collisions::{Collision, CollisionKind, Collisions};
 pub use distance::{EdgeEdgeDistanceType, PointEdgeDistanceType, PointTriangleDistanceType};
 pub use math::{Matrix12, Vector12};
 pub use mesh::ContactMesh;
-pub use potential::{BarrierPotential, HessianBlock, Projection, add_hessian_product};
+pub use potential::{
+    BarrierPotential, HessianBlock, Projection, add_hessian_product, assemble_dense,
+};
 
 /// Errors at the contact module's boundary.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]

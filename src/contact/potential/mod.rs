@@ -36,6 +36,25 @@ pub struct HessianBlock {
     pub matrix: Matrix12,
 }
 
+/// The blocks summed into a dense row-major `dim × dim` matrix (`dim` = 3 × vertices): for
+/// checks and small problems (tests compare it with finite differences and ipctk).
+pub fn assemble_dense(blocks: &[HessianBlock], dim: usize) -> Vec<f64> {
+    let mut h = vec![0.0; dim * dim];
+    for b in blocks {
+        for (i, &vi) in b.vertices.iter().enumerate() {
+            for (j, &vj) in b.vertices.iter().enumerate() {
+                for r in 0..3 {
+                    for c in 0..3 {
+                        h[(3 * vi as usize + r) * dim + 3 * vj as usize + c] +=
+                            b.matrix[(3 * i + r, 3 * j + c)];
+                    }
+                }
+            }
+        }
+    }
+    h
+}
+
 impl HessianBlock {
     /// `out += H·v` for interleaved vectors `v`, `out` of the simulation's size.
     pub fn add_product(&self, v: &[f64], out: &mut [f64]) {

@@ -13,23 +13,6 @@ fn scene() -> (crate::contact::ContactMesh, Vec<f64>, f64) {
     (mesh, x, 0.01)
 }
 
-fn dense_hessian(blocks: &[HessianBlock], n: usize) -> Vec<f64> {
-    let mut h = vec![0.0; n * n];
-    for b in blocks {
-        for (i, &vi) in b.vertices.iter().enumerate() {
-            for (j, &vj) in b.vertices.iter().enumerate() {
-                for r in 0..3 {
-                    for c in 0..3 {
-                        h[(3 * vi as usize + r) * n + 3 * vj as usize + c] +=
-                            b.matrix[(3 * i + r, 3 * j + c)];
-                    }
-                }
-            }
-        }
-    }
-    h
-}
-
 #[test]
 fn gradient_and_hessian_match_finite_differences() {
     let (mesh, x, dhat) = scene();
@@ -55,7 +38,7 @@ fn gradient_and_hessian_match_finite_differences() {
     let n = x.len();
     let g = pot.gradient(&set, &x).unwrap();
     let blocks = pot.hessian(&set, &x, Projection::None).unwrap();
-    let h = dense_hessian(&blocks, n);
+    let h = assemble_dense(&blocks, n);
     let step = 1e-8;
     let gscale = g.iter().fold(0.0f64, |m, v| m.max(v.abs()));
     let hscale = h.iter().fold(0.0f64, |m, v| m.max(v.abs()));
