@@ -8,6 +8,7 @@
 
 pub mod bench;
 pub mod contact;
+pub mod drive;
 pub mod geometry;
 pub mod model;
 pub mod nn;

@@ -11,6 +11,7 @@
 //! - [`jaw`]: rigid fit of the lower teeth (the jaw transform of a pose) and the jaw pivot.
 //! - [`surface`]: triangle surfaces made of rig regions (pose-independent topology).
 //! - [`intersect`], [`gap`]: edge–triangle self-intersections and the minimum gap between non-adjacent parts of a surface.
+//! - [`style`]: the 4-d style code and each identity's default style.
 //! - [`repair`]: removing the rest-pose self-intersections with the smallest vertex motion.
 //!
 //! Units are centimetres throughout; +y up, +z out of the face.
@@ -23,12 +24,14 @@ pub mod jaw;
 pub mod obj;
 pub mod regions;
 pub mod repair;
+pub mod style;
 pub mod surface;
 
 pub use expression::ExpressionCode;
 pub use face_rig::{FaceRig, LoadProgress, RigError, RigIndices};
 pub use obj::{ObjError, ObjMesh, Polygons};
 pub use regions::Region;
+pub use style::StyleCode;
 
 #[cfg(test)]
 pub(crate) mod test_support {
