@@ -14,4 +14,5 @@ pub mod model;
 pub mod nn;
 pub mod rig;
 pub mod scene;
+pub mod session;
 pub mod sim;
