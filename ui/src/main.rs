@@ -1,11 +1,6 @@
 //! `facesim-editor`: the interactive editor (`cargo run --release` at the repository root),
 //! and `serve`, the headless session for remote editors and scripts.
 
-mod app;
-mod faces;
-mod rerun_log;
-mod scene;
-mod viewport;
 
 use std::net::TcpListener;
 use std::path::PathBuf;
@@ -17,7 +12,8 @@ use facesim::session::client::RemoteSession;
 use facesim::session::{Session, SessionHandle};
 use facesim::sim::Quality;
 
-use crate::rerun_log::{RerunLogger, RerunTarget};
+use facesim_ui::rerun_log::{RerunLogger, RerunTarget};
+use facesim_ui::{app, faces};
 
 #[derive(Parser)]
 #[command(
