@@ -126,7 +126,7 @@ impl EditorApp {
             .selected_text(faces[face].name.clone())
             .show_ui(ui, |ui| {
                 for f in &faces {
-                    ui.selectable_value(&mut face, f.index, &f.name);
+                    ui.selectable_value(&mut face, f.index, f.name.as_str());
                 }
             });
         if face != inputs.face {
@@ -216,7 +216,7 @@ impl EditorApp {
             .show_ui(ui, |ui| {
                 ui.selectable_value(&mut heat, None, "none");
                 for (i, n) in names.iter().enumerate() {
-                    ui.selectable_value(&mut heat, Some(i), n);
+                    ui.selectable_value(&mut heat, Some(i), n.as_str());
                 }
             });
         self.toggles.heatmap = heat;
@@ -324,7 +324,7 @@ impl EditorApp {
                     Err(e) => e.to_string(),
                 };
             }
-            ui.label(&t.message);
+            ui.label(t.message.as_str());
         });
     }
 
@@ -433,8 +433,9 @@ fn legend(ui: &mut egui::Ui, field: &facesim::session::ScalarField) {
 }
 
 impl eframe::App for EditorApp {
-    fn update(&mut self, ctx: &egui::Context, _frame: &mut eframe::Frame) {
+    fn ui(&mut self, ui: &mut egui::Ui, _frame: &mut eframe::Frame) {
         let start = Instant::now();
+        let ctx = ui.ctx().clone();
         if let Some(codes) = self.tick_timeline() {
             self.submit(&[Request::Codes(codes)]);
         }
@@ -444,14 +445,14 @@ impl eframe::App for EditorApp {
         if let Some(f) = self.session.latest() {
             self.last_frame = Some(f);
         }
-        egui::SidePanel::left("controls")
+        egui::Panel::left("controls")
             .resizable(true)
-            .default_width(300.0)
-            .show(ctx, |ui| {
+            .default_size(300.0)
+            .show(ui, |ui| {
                 egui::ScrollArea::vertical().show(ui, |ui| self.controls(ui));
             });
-        egui::TopBottomPanel::bottom("timeline").show(ctx, |ui| self.timeline(ui));
-        egui::CentralPanel::default().show(ctx, |ui| self.viewport(ui));
+        egui::Panel::bottom("timeline").show(ui, |ui| self.timeline(ui));
+        egui::CentralPanel::default().show(ui, |ui| self.viewport(ui));
         self.ui_ms = start.elapsed().as_secs_f64() * 1e3;
     }
 }
