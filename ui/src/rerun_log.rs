@@ -123,10 +123,10 @@ impl RerunLogger {
                     .with_vertex_colors(colors),
             )?;
         }
-        let strips: Vec<Vec<Position3D>> = frame
+        let strips: Vec<Vec<[f32; 3]>> = frame
             .crosses
             .iter()
-            .map(|a| vec![pos(&a.from), pos(&a.to)])
+            .map(|a| vec![a.from, a.to])
             .collect();
         rec.log("face/crosses", &rerun::LineStrips3D::new(strips))?;
         let r = frame.jaw.rotation_matrix();

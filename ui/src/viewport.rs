@@ -254,7 +254,7 @@ impl ViewportResources {
                     module: &scene,
                     entry_point: Some(vs),
                     compilation_options: Default::default(),
-                    buffers: &[layout],
+                    buffers: &[Some(layout)],
                 },
                 primitive: wgpu::PrimitiveState {
                     topology,
