@@ -7,6 +7,8 @@
 //! model behind it (the per-shape actuation basis, or the trained networks) can change
 //! without them changing.
 
+pub mod fit;
+
 use serde::{Deserialize, Serialize};
 
 use crate::rig::ExpressionCode;

@@ -381,16 +381,16 @@ pub fn build_face(
         })
         .collect();
     // Tissue between skull and jaw must stay free to stretch: where the two bones' regions
-    // come within `BONE_GAP_RINGS` edges of each other, neither holds the tissue.
+    // come within `BONE_GAP_RINGS` edges of each other, neither holds the tissue. This holds
+    // on the crop's pinned border too: a prism column pinned to the skull beside one pinned
+    // to the jaw is torn apart (its elements invert) as soon as the jaw opens.
     for _ in 0..BONE_GAP_RINGS {
         let mut next = bone.clone();
         for t in &triangles {
             let has = |b: Bone| t.iter().any(|&v| bone[v as usize] == Some(b));
             if has(Bone::Skull) && has(Bone::Jaw) {
                 for &v in t {
-                    if !pinned[v as usize] {
-                        next[v as usize] = None;
-                    }
+                    next[v as usize] = None;
                 }
             }
         }
@@ -446,7 +446,6 @@ pub fn build_face(
     Ok(model)
 }
 
-/// Drops unreferenced vertices.
 /// Rings of skin left free between the skull's and the jaw's attachment regions.
 const BONE_GAP_RINGS: usize = 2;
 
@@ -719,8 +718,7 @@ mod tests {
     use crate::sim::{Quality, SymTensor};
 
     fn neutral_coarse() -> &'static FaceModel {
-        static MODEL: std::sync::OnceLock<FaceModel> = std::sync::OnceLock::new();
-        MODEL.get_or_init(|| build_face(rig(), None, &Lod::Coarse.settings()).unwrap())
+        crate::model::test_support::coarse_face(None)
     }
 
     #[test]
