@@ -6,8 +6,8 @@
 //! so simulating those actuations (same bones) lands back near the target: this is how a
 //! pose of the rig becomes actuations the networks can learn.
 //!
-//! The passive problem is `Σₑ (w·Vₑ/2)·‖Fₑ − Rₑ‖² + Σ (k/2)·‖x − bone target‖²
-//! + Σ (k_s/2)·‖x − skin target‖²`, solved by projective dynamics with its own factored
+//! The passive problem, `Σₑ (w·Vₑ/2)·‖Fₑ − Rₑ‖²` plus springs `(k/2)·‖x − bone target‖²`
+//! and `(k_s/2)·‖x − skin target‖²`, is solved by projective dynamics with its own factored
 //! matrix (the springs on the skin change the matrix, not the simulator's).
 
 use nalgebra::{Matrix3, Point3, SymmetricEigen, UnitQuaternion, Vector3};

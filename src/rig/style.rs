@@ -122,7 +122,7 @@ pub fn identity_style(identity: Option<usize>) -> StyleCode {
     match identity {
         None => StyleCode::NEUTRAL,
         Some(i) => {
-            let sign = if (i / TABLE.len()) % 2 == 0 { 1.0 } else { -1.0 };
+            let sign = if (i / TABLE.len()).is_multiple_of(2) { 1.0 } else { -1.0 };
             StyleCode(TABLE[i % TABLE.len()].map(|v| sign * v))
         }
     }
