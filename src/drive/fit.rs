@@ -39,7 +39,7 @@ impl Default for FitSettings {
             skin_ratio: 100.0,
             tolerance: 1e-4,
             max_iterations: 2000,
-            min_stretch: 0.2,
+            min_stretch: 0.3,
         }
     }
 }
@@ -111,7 +111,12 @@ impl<'a> ActuationFitter<'a> {
             }
         }
         let mut bones = vec![None; n];
-        for (&v, &b) in face.attachments.vertices.iter().zip(&face.attachments.bones) {
+        for (&v, &b) in face
+            .attachments
+            .vertices
+            .iter()
+            .zip(&face.attachments.bones)
+        {
             bones[v as usize] = Some(b);
         }
         let anchors = skin_anchors(face, &bones);
@@ -385,7 +390,11 @@ mod tests {
         let face = coarse_face(Some(2));
         let fitter = ActuationFitter::new(face, FitSettings::default()).unwrap();
         let sim = face.simulator().unwrap();
-        for c in [codes("mouthSmile_L", 1.0), codes("jawOpen", 0.6), codes("mouthPucker", 1.0)] {
+        for c in [
+            codes("mouthSmile_L", 1.0),
+            codes("jawOpen", 0.6),
+            codes("mouthPucker", 1.0),
+        ] {
             let t = target(rig(), face, &c).unwrap();
             let fit = fitter.fit(&t, None).unwrap();
             assert!(fit.residual <= 1e-4, "{c:?}: residual {}", fit.residual);
@@ -406,8 +415,14 @@ mod tests {
             }
             // The pose moves the skin by centimetres; simulating its actuations lands within
             // a small fraction of that.
-            assert!(moved > 0.3, "{c:?}: the target moves the skin by {moved} cm");
-            assert!(off < 0.1 * moved, "{c:?}: simulated {off} cm from the fit ({moved} cm)");
+            assert!(
+                moved > 0.3,
+                "{c:?}: the target moves the skin by {moved} cm"
+            );
+            assert!(
+                off < 0.1 * moved,
+                "{c:?}: simulated {off} cm from the fit ({moved} cm)"
+            );
         }
     }
 

@@ -260,10 +260,11 @@ pub fn build_face(
     });
     report.dropped_triangles = before - triangles.len();
     let (mut triangles, kept) = compact(&triangles, positions.len());
-    let (positions, inward, origin) = (
+    let (positions, inward, origin, pinned) = (
         gather(&positions, &kept),
         gather(&inward, &kept),
         gather(&origin, &kept),
+        gather(&pinned, &kept),
     );
     let mut thickness = tissue_thickness(rig, &rest, &positions, &inward, settings);
     limit_slope(&positions, &triangles, &mut thickness, MAX_THICKNESS_SLOPE);

@@ -7,7 +7,7 @@ pub mod targets;
 
 pub use build::{BuildError, BuildReport, BuildSettings, Lod, build_face};
 pub use face::{Binding, FaceModel, RenderSurface};
-pub use targets::{Target, TargetError, target};
+pub use targets::{Target, TargetError, shape_target, target};
 
 #[cfg(test)]
 pub(crate) mod test_support {

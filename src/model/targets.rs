@@ -36,6 +36,15 @@ pub enum TargetError {
 /// The target of `codes` (expression performed in the style) on `face`.
 pub fn target(rig: &FaceRig, face: &FaceModel, codes: &Codes) -> Result<Target, TargetError> {
     codes.validate()?;
+    shape_target(rig, face, &codes.style.shape_weights(&codes.expression))
+}
+
+/// The target of weights on named rig shapes (any of the rig's shapes) on `face`.
+pub fn shape_target(
+    rig: &FaceRig,
+    face: &FaceModel,
+    weights: &[(&'static str, f64)],
+) -> Result<Target, TargetError> {
     let mismatch = |reason: String| TargetError::RigMismatch {
         face: face.name.clone(),
         reason,
@@ -49,17 +58,26 @@ pub fn target(rig: &FaceRig, face: &FaceModel, codes: &Codes) -> Result<Target, 
         )));
     }
     let base = rig.base(face.identity);
-    if let Some(v) = face.render.rig_vertices.iter().find(|&&v| v as usize >= base.len()) {
+    if let Some(v) = face
+        .render
+        .rig_vertices
+        .iter()
+        .find(|&&v| v as usize >= base.len())
+    {
         return Err(mismatch(format!(
             "render vertex {v}, the rig has {}",
             base.len()
         )));
     }
-    let weights = codes
-        .style
-        .shape_weights(&codes.expression)
-        .into_iter()
-        .map(|(name, w)| Ok((rig.shape_index(name).ok_or(TargetError::MissingShape(name))?, w)))
+    let weights = weights
+        .iter()
+        .map(|&(name, w)| {
+            Ok((
+                rig.shape_index(name)
+                    .ok_or(TargetError::MissingShape(name))?,
+                w,
+            ))
+        })
         .collect::<Result<Vec<_>, TargetError>>()?;
     let posed = rig.pose_shapes(face.identity, &weights);
     let jaw = fit_jaw(base, &posed, &face.jaw_pivot)?;
@@ -121,8 +139,15 @@ mod tests {
     fn style_changes_the_target_and_bad_codes_are_rejected() {
         let face = coarse_face(Some(1));
         let smile = ExpressionCode::single("mouthSmile_L", 1.0).unwrap();
-        let plain = target(rig(), face, &Codes { expression: smile, style: StyleCode::NEUTRAL })
-            .unwrap();
+        let plain = target(
+            rig(),
+            face,
+            &Codes {
+                expression: smile,
+                style: StyleCode::NEUTRAL,
+            },
+        )
+        .unwrap();
         let styled = target(
             rig(),
             face,
@@ -143,7 +168,10 @@ mod tests {
         bad.expression.0[3] = f64::NAN;
         assert!(matches!(
             target(rig(), face, &bad),
-            Err(TargetError::Code(DriveError::NonFiniteCode { name: "jawForward", .. }))
+            Err(TargetError::Code(DriveError::NonFiniteCode {
+                name: "jawForward",
+                ..
+            }))
         ));
     }
 }
