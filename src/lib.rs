@@ -10,6 +10,7 @@ pub mod bench;
 pub mod contact;
 pub mod drive;
 pub mod geometry;
+pub mod mapping;
 pub mod model;
 pub mod nn;
 pub mod rig;

@@ -5,6 +5,8 @@ use std::path::PathBuf;
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
 
+mod cli_mapping;
+
 #[derive(Parser)]
 #[command(
     name = "facesim",
@@ -33,6 +35,11 @@ enum Command {
         #[arg(long, value_delimiter = ',', default_values_t = [facesim::model::Lod::Coarse])]
         lod: Vec<facesim::model::Lod>,
     },
+    /// Train the mapping networks φ (identity → canonical face) of the faces in a folder.
+    TrainMapping(cli_mapping::TrainArgs),
+    /// Mapping-function statistics (Fig. 3 heatmaps, CSVs, per-vertex values) and, with
+    /// `--warp`, the warp-versus-naive comparison.
+    Stats(cli_mapping::StatsArgs),
     /// Measure performance (results are medians of repeated runs).
     Bench {
         #[command(subcommand)]
@@ -65,6 +72,8 @@ fn main() -> Result<()> {
             identities,
             lod,
         } => import(&rig, &out, &identities, &lod)?,
+        Command::TrainMapping(args) => cli_mapping::train_mapping(&args)?,
+        Command::Stats(args) => cli_mapping::stats(&args)?,
         Command::Bench {
             target:
                 BenchTarget::Solver {
