@@ -14,5 +14,6 @@ pub mod mapping;
 pub mod model;
 pub mod nn;
 pub mod rig;
+pub mod sample;
 pub mod scene;
 pub mod sim;

@@ -35,6 +35,17 @@ enum Command {
         #[arg(long, value_delimiter = ',', default_values_t = [facesim::model::Lod::Coarse])]
         lod: Vec<facesim::model::Lod>,
     },
+    /// Build the bundled sample (template + a few identities, coarse, with fitted actuation
+    /// bases); then train its mappings with `train-mapping --faces OUT`.
+    Sample {
+        #[arg(long, default_value = "../shared/data/ict-facekit")]
+        rig: PathBuf,
+        #[arg(long, default_value = facesim::sample::SAMPLE_DIR)]
+        out: PathBuf,
+        /// Rig identities besides the template.
+        #[arg(long, value_delimiter = ',', default_values_t = facesim::sample::SAMPLE_IDENTITIES)]
+        identities: Vec<usize>,
+    },
     /// Train the mapping networks φ (identity → canonical face) of the faces in a folder.
     TrainMapping(cli_mapping::TrainArgs),
     /// Mapping-function statistics (Fig. 3 heatmaps, CSVs, per-vertex values) and, with
@@ -72,6 +83,11 @@ fn main() -> Result<()> {
             identities,
             lod,
         } => import(&rig, &out, &identities, &lod)?,
+        Command::Sample {
+            rig,
+            out,
+            identities,
+        } => sample(&rig, &out, &identities)?,
         Command::TrainMapping(args) => cli_mapping::train_mapping(&args)?,
         Command::Stats(args) => cli_mapping::stats(&args)?,
         Command::Bench {
@@ -100,15 +116,18 @@ fn main() -> Result<()> {
     Ok(())
 }
 
-/// `facesim import`: loads and validates the rig, builds each identity at each level of
-/// detail, writes the models and prints what the importer did.
-fn import(
-    rig_dir: &std::path::Path,
-    out: &std::path::Path,
-    identities: &[String],
-    lods: &[facesim::model::Lod],
-) -> Result<()> {
-    use facesim::model::build_face;
+/// A spinner that shows the current step and the time spent.
+fn spinner() -> indicatif::ProgressBar {
+    let bar = indicatif::ProgressBar::new_spinner();
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{spinner} [{elapsed_precise}] {msg}")
+            .expect("valid template"),
+    );
+    bar.enable_steady_tick(std::time::Duration::from_millis(120));
+    bar
+}
+
+fn load_rig(rig_dir: &std::path::Path) -> Result<facesim::rig::FaceRig> {
     eprintln!("loading the rig from {}…", rig_dir.display());
     let rig = facesim::rig::FaceRig::load_with_progress(rig_dir, &|p| {
         eprint!("\r  {}/{} {}\x1b[K", p.done, p.total, p.file.display())
@@ -120,6 +139,58 @@ fn import(
         rig.identity_count(),
         rig.load_time().as_secs_f64()
     );
+    Ok(rig)
+}
+
+/// `facesim sample`: builds the bundled sample and prints how well each face's actuation
+/// basis fits the rig.
+fn sample(rig_dir: &std::path::Path, out: &std::path::Path, identities: &[usize]) -> Result<()> {
+    use facesim::sample::{SAMPLE_LOD, write_sample};
+    let rig = load_rig(rig_dir)?;
+    let bar = spinner();
+    let manifest = write_sample(&rig, out, identities, SAMPLE_LOD, &|m| {
+        bar.set_message(m.to_string())
+    })
+    .with_context(|| format!("building the sample in {}", out.display()))?;
+    bar.finish_and_clear();
+    println!(
+        "| face | elements | basis skin error (RMS / max, mm) | jaw fit RMS (mm) | clamped elements |"
+    );
+    println!("|---|---:|---|---:|---:|");
+    for entry in &manifest.faces {
+        let model = facesim::model::FaceModel::load(&out.join(&entry.face))?;
+        let basis = facesim::drive::basis::ActuationBasis::load(&out.join(&entry.basis))?;
+        let rms = basis.fits.iter().map(|f| f.skin_rms).fold(0.0, f64::max);
+        let max = basis.fits.iter().map(|f| f.skin_max).fold(0.0, f64::max);
+        let jaw = basis.fits.iter().map(|f| f.jaw_rms).fold(0.0, f64::max);
+        let clamped: usize = basis.fits.iter().map(|f| f.clamped).sum();
+        println!(
+            "| {} | {} | ≤ {:.3} / {:.3} | ≤ {:.3} | {clamped} |",
+            entry.name,
+            model.mesh.element_count(),
+            10.0 * rms,
+            10.0 * max,
+            10.0 * jaw
+        );
+    }
+    eprintln!(
+        "wrote {}; next: train its mappings with `train-mapping --faces {}`",
+        out.display(),
+        out.display()
+    );
+    Ok(())
+}
+
+/// `facesim import`: loads and validates the rig, builds each identity at each level of
+/// detail, writes the models and prints what the importer did.
+fn import(
+    rig_dir: &std::path::Path,
+    out: &std::path::Path,
+    identities: &[String],
+    lods: &[facesim::model::Lod],
+) -> Result<()> {
+    use facesim::model::build_face;
+    let rig = load_rig(rig_dir)?;
     let mut chosen: Vec<Option<usize>> = Vec::new();
     for id in identities {
         match id.as_str() {
@@ -148,9 +219,11 @@ fn import(
     for lod in lods {
         for &identity in &chosen {
             let label = identity.map_or("neutral".to_string(), |i| format!("identity{i:03}"));
-            eprintln!("building {label} at {} detail…", lod.name());
+            let bar = spinner();
+            bar.set_message(format!("building {label} at {} detail", lod.name()));
             let model = build_face(&rig, identity, &lod.settings())
                 .with_context(|| format!("building {label}"))?;
+            bar.finish_and_clear();
             let path = out.join(format!("{label}-{}.face", lod.name()));
             model.save(&path)?;
             let (q, r) = (&model.quality, &model.report);
