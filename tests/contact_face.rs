@@ -77,27 +77,91 @@ fn contact_region_is_the_mouth() {
     assert!(c.new_crossings(&y).is_empty());
 }
 
-fn probe(pose: MouthPose, settings: &SolveSettings) {
+/// Solves `poses` in order (warm-started, interactive preset) and checks every frame: no
+/// error (so no inverted element and no crossing found by the solver), finite positions,
+/// zero crossings by an independent check, iterations within the cap.
+fn run_poses(poses: &[MouthPose]) {
     let sim = simulator();
+    let settings = Quality::Interactive.settings();
     let mut state = sim.rest_state();
-    let stats = sim.solve(&field().actuations(&pose), &pose.bones(), &mut state, settings);
-    match &stats {
-        Ok(s) => eprintln!(
-            "{pose:?}: {} it, {:?}, residual {:.2e}, energy {:.3e}, wall {:?}, local {:?}, global {:?}\n  {:?}",
-            s.iterations, s.termination, s.residual, s.energy, s.wall_time, s.local_time, s.global_time, s.contact
-        ),
-        Err(e) => eprintln!("{pose:?}: {e}"),
+    for pose in poses {
+        let bones = pose.bones();
+        let stats = sim
+            .solve(&field().actuations(pose), &bones, &mut state, &settings)
+            .unwrap_or_else(|e| panic!("{pose:?}: {e}"));
+        assert!(state.flat_positions().iter().all(|v| v.is_finite()));
+        assert_intersection_free(&state, &bones);
+        let contact = stats.contact.as_ref().expect("contact was on");
+        assert_eq!(contact.new_crossings, 0);
+        assert!(contact.min_distance > 0.0);
+        assert!(stats.iterations <= settings.max_iterations * contact.pose_stages);
+        eprintln!(
+            "{pose:?}: {} it ({:?}), residual {:.1e}, {} active pairs, min gap {:.1e} cm, {:.0} ms",
+            stats.iterations,
+            stats.termination,
+            stats.residual,
+            contact.active_pairs,
+            contact.min_distance,
+            stats.wall_time.as_secs_f64() * 1e3
+        );
     }
 }
 
 #[test]
-fn probe_jaw() {
-    probe(
-        MouthPose {
-            jaw_open: -0.03,
+fn jaw_closing_hard_onto_lips_and_teeth() {
+    let poses: Vec<MouthPose> = [-0.01, -0.02, -0.03, -0.04]
+        .iter()
+        .map(|&jaw_open| MouthPose {
+            jaw_open,
             press: 1.0,
             ..MouthPose::default()
-        },
-        &Quality::Interactive.settings(),
-    );
+        })
+        .collect();
+    run_poses(&poses);
+}
+
+#[test]
+fn lips_pressed_pursed_and_rolled_past_their_extremes() {
+    let extreme = |purse, press, roll| MouthPose {
+        jaw_open: 0.0,
+        purse,
+        press,
+        roll,
+    };
+    run_poses(&[
+        extreme(0.0, 1.0, 0.0),
+        extreme(0.0, 1.5, 0.0),
+        extreme(1.5, 1.5, 1.5),
+        extreme(1.5, 1.5, -1.5),
+        extreme(0.0, 0.0, 1.5),
+    ]);
+}
+
+#[test]
+fn random_sweep_beyond_the_range() {
+    run_poses(&random_poses(7, 8, 1.5, 0.05));
+}
+
+#[test]
+fn contact_off_is_the_plain_solve() {
+    let sim = simulator();
+    let plain = model().simulator().unwrap();
+    let pose = MouthPose {
+        purse: 0.5,
+        ..MouthPose::default()
+    };
+    let settings = SolveSettings {
+        contact: false,
+        ..Quality::Interactive.settings()
+    };
+    let (mut a, mut b) = (sim.rest_state(), plain.rest_state());
+    let sa = sim.solve(&field().actuations(&pose), &pose.bones(), &mut a, &settings).unwrap();
+    let sb = plain.solve(&field().actuations(&pose), &pose.bones(), &mut b, &settings).unwrap();
+    assert!(sa.contact.is_none() && sb.contact.is_none());
+    assert_eq!(a.flat_positions(), b.flat_positions());
+    // The sequence driver records every frame.
+    let outcomes = run_sequence(&sim, 2, &Quality::Interactive.settings(), |_| {
+        (vec![SymTensor::IDENTITY; model().mesh.element_count()], BonePose::default())
+    });
+    assert!(outcomes.iter().all(|o| o.result.is_ok()));
 }

@@ -43,6 +43,8 @@ use crate::contact::{
 
 /// Longest move of a contact vertex in one line-search step (cm).
 const MAX_CONTACT_MOVE: f64 = 0.25;
+/// Smallest Verlet-list slack δ, in units of d̂.
+const VERLET_SLACK: f64 = 1.0;
 /// Advances per pair in the additive CCD; a capped pair keeps the (safe) time it reached.
 const CCD_MAX_ITERATIONS: u64 = 200;
 
@@ -74,7 +76,10 @@ pub struct ContactStats {
     /// Edge–triangle crossings of the contact surface after the solve that were not there at
     /// rest: always 0 in a returned result (anything else is [`super::SimError::Intersecting`]).
     pub new_crossings: usize,
-    /// Time building candidate pairs (BVH over swept, d̂-grown boxes).
+    /// Candidate lists built (the rest of the steps reused one).
+    pub candidate_builds: usize,
+    /// Time building candidate pairs (BVH over grown boxes) and checking they still cover
+    /// the step.
     pub broad_phase_time: Duration,
     /// Time evaluating the barrier (active sets, value, gradient, Hessian, PSD projection).
     pub barrier_time: Duration,
@@ -237,6 +242,8 @@ pub(crate) struct ContactSolve<'a> {
     /// The current step: `W·d`, its candidates, the trial positions and active set.
     dy: Vec<f64>,
     candidates: Candidates,
+    /// Where the candidates were built and the slack δ they allow.
+    verlet: Option<(Vec<f64>, f64)>,
     y_trial: Vec<f64>,
     trial_collisions: Collisions,
     trial_barrier: f64,
@@ -291,6 +298,7 @@ impl<'a> ContactSolve<'a> {
             prev_min_distance2,
             dy: vec![0.0; 3 * m],
             candidates: Candidates::default(),
+            verlet: None,
             y_trial: vec![0.0; 3 * m],
             trial_collisions: Collisions::default(),
             trial_barrier: 0.0,
@@ -324,10 +332,15 @@ impl<'a> ContactSolve<'a> {
         Ok(())
     }
 
-    /// Prepares the step `x → x + α·d`: its candidate pairs (swept, grown by d̂) and the
-    /// largest collision-free `α ∈ [0, 1]`. Steps that would move a contact vertex farther
-    /// than [`MAX_CONTACT_MOVE`] are shortened first (a trust region: swept boxes stay small,
-    /// so the broad phase stays local).
+    /// Prepares the step `x → x + α·d`: its candidate pairs and the largest collision-free
+    /// `α ∈ [0, 1]`. Steps that would move a contact vertex farther than
+    /// [`MAX_CONTACT_MOVE`] are shortened first (a trust region that keeps the broad phase
+    /// local).
+    ///
+    /// Candidates are kept between steps (a Verlet list): they are built at positions `y₀`
+    /// with boxes grown by `d̂ + 2δ`, which covers every pair that can come within d̂ while
+    /// each vertex stays within `δ` (per coordinate) of `y₀`. A step is checked against that
+    /// and the list is rebuilt only when some vertex would leave its slack.
     pub(crate) fn max_step(&mut self, d: &[f64]) -> Result<f64, ContactError> {
         self.model.face.displacement(d, &mut self.dy);
         let longest = self
@@ -343,7 +356,32 @@ impl<'a> ContactSolve<'a> {
         let swept: Vec<f64> = self.dy.iter().map(|v| cap * v).collect();
         let mesh = self.model.face.mesh();
         let t = Instant::now();
-        self.candidates = Candidates::build_swept(mesh, &self.y, &swept, self.potential.dhat)?;
+        let inside = |slack: f64, from: &[f64]| {
+            self.y
+                .iter()
+                .zip(&swept)
+                .zip(from)
+                .all(|((y, s), y0)| (y - y0).abs() <= slack && (y + s - y0).abs() <= slack)
+        };
+        let valid = self
+            .verlet
+            .as_ref()
+            .is_some_and(|(from, slack)| inside(*slack, from));
+        if !valid {
+            let step = swept.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            let slack = VERLET_SLACK * self.potential.dhat;
+            if step <= slack {
+                self.candidates =
+                    Candidates::build(mesh, &self.y, self.potential.dhat + 2.0 * slack)?;
+                self.verlet = Some((self.y.clone(), slack));
+            } else {
+                // A long step: candidates for this step alone (swept boxes grown by d̂).
+                self.candidates =
+                    Candidates::build_swept(mesh, &self.y, &swept, self.potential.dhat)?;
+                self.verlet = None;
+            }
+            self.stats.candidate_builds += 1;
+        }
         self.stats.broad_phase_time += t.elapsed();
         let t = Instant::now();
         let report = collision_free_step_over(
@@ -575,4 +613,75 @@ pub(crate) fn factor_triplets(
         )
         .map_err(|e| format!("{e:?}"))?;
     Ok((symbolic, values))
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::contact::drive::{LipField, MouthPose};
+    use crate::contact::face::{FaceContact, FaceContactSettings};
+    use crate::model::{Lod, build_face};
+    use crate::sim::Quality;
+
+    /// The barrier is part of the energy that sensitivities differentiate: at a solved state
+    /// with active contact, `H·v` (elastic + exact barrier Hessian) matches central finite
+    /// differences of `∇E` (elastic + barrier gradient), and `∇E` matches differences of `E`.
+    #[test]
+    fn barrier_hessian_and_gradient_match_finite_differences() {
+        let model = build_face(crate::rig::test_support::rig(), None, &Lod::Coarse.settings())
+            .unwrap();
+        let face = FaceContact::new(&model, &FaceContactSettings::default()).unwrap();
+        let field = LipField::new(&model, &face, 1.5);
+        let mut sim = model.simulator().unwrap();
+        sim.set_contact(face).unwrap();
+        let pose = MouthPose {
+            press: 1.0,
+            purse: 0.5,
+            ..MouthPose::default()
+        };
+        let (act, bones) = (field.actuations(&pose), pose.bones());
+        let mut state = sim.rest_state();
+        let stats = sim
+            .solve(&act, &bones, &mut state, &Quality::Interactive.settings())
+            .unwrap();
+        let contact = stats.contact.unwrap();
+        assert!(contact.active_pairs > 0, "the test needs active contact");
+        // A direction on the simulation vertices that the contact surface depends on.
+        let region = sim.contact().unwrap().region_sim_vertices().to_vec();
+        let mut v = vec![0.0; state.x.len()];
+        for (k, &r) in region.iter().enumerate() {
+            for c in 0..3 {
+                v[3 * r as usize + c] = (((7 * k + 3 * c) % 11) as f64 - 5.0) / 5.0;
+            }
+        }
+        let shifted = |h: f64| {
+            let mut s = state.clone();
+            for (x, d) in s.x.iter_mut().zip(&v) {
+                *x += h * d;
+            }
+            s
+        };
+        // Small enough to stay on one side of every pair's d̂ and closest-feature boundary.
+        let h = 1e-4 * contact.min_distance;
+        let (e0, g0) = sim.energy_gradient(&act, &bones, &state).unwrap();
+        let (ep, gp) = sim.energy_gradient(&act, &bones, &shifted(h)).unwrap();
+        let (em, gm) = sim.energy_gradient(&act, &bones, &shifted(-h)).unwrap();
+        let hv = sim.hessian_vector_product(&act, &bones, &state, &v).unwrap();
+        let fd: Vec<f64> = gp.iter().zip(&gm).map(|(p, m)| (p - m) / (2.0 * h)).collect();
+        let norm = |a: &[f64]| a.iter().map(|x| x * x).sum::<f64>().sqrt();
+        let diff: Vec<f64> = hv.iter().zip(&fd).map(|(a, b)| a - b).collect();
+        let rel = norm(&diff) / norm(&fd);
+        assert!(rel < 1e-5, "H·v vs finite differences: {rel:e}");
+        let slope: f64 = g0.iter().zip(&v).map(|(g, d)| g * d).sum();
+        let fd_slope = (ep - em) / (2.0 * h);
+        assert!(
+            (slope - fd_slope).abs() <= 1e-5 * slope.abs().max(1e-12 * e0.abs()),
+            "∇E·v = {slope:e}, finite differences {fd_slope:e}"
+        );
+        // Without the barrier's Hessian the product would be off: the check can fail.
+        let mut plain = state.clone();
+        plain.contact_stiffness = None;
+        let hv_plain = sim.hessian_vector_product(&act, &bones, &plain, &v).unwrap();
+        let off: Vec<f64> = hv_plain.iter().zip(&fd).map(|(a, b)| a - b).collect();
+        assert!(norm(&off) / norm(&fd) > 1e3 * rel);
+    }
 }

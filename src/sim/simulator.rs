@@ -116,6 +116,9 @@ pub struct SimState {
     /// The bone pose `x` was solved under (the rest pose for a fresh state): contact moves
     /// the teeth from here to the next pose without crossing the lips.
     pub(crate) bones: BonePose,
+    /// The barrier stiffness κ the last contact solve ended with (`None`: solved without
+    /// contact); part of the energy that sensitivities differentiate.
+    pub(crate) contact_stiffness: Option<f64>,
 }
 
 impl SimState {
@@ -313,6 +316,7 @@ impl Simulator {
             history: None,
             spare: Vec::new(),
             bones: BonePose::default(),
+            contact_stiffness: None,
         }
     }
 

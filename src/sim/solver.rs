@@ -297,6 +297,7 @@ impl Simulator {
         let Some(model) = model else {
             let mut stats = self.solve_stage(&frame, None, bones, state, settings)?;
             state.bones = *bones;
+            state.contact_stiffness = None;
             stats.wall_time = start.elapsed();
             return Ok(stats);
         };
@@ -365,6 +366,7 @@ impl Simulator {
             reached = s;
         }
         let mut stats = total.expect("at least one stage ran");
+        state.contact_stiffness = stats.contact.as_ref().map(|c| c.stiffness);
         // The intersection-free guarantee, checked on what the artist sees.
         let mut y = vec![0.0; 3 * model.face.vertex_count()];
         model.face.positions(&state.x, bones, &mut y);
@@ -399,11 +401,19 @@ impl Simulator {
         model.face.positions(x, a, &mut ya);
         model.face.positions(x, b, &mut yb);
         let dy: Vec<f64> = yb.iter().zip(&ya).map(|(p, q)| p - q).collect();
+        // The teeth may not take more than half of any gap within d̂ (so the barrier the
+        // stage starts with stays moderate), nor cross anything.
+        let collisions = model.face.collisions(&ya)?;
+        let gap = collisions.min_distance_squared().sqrt();
         let report = crate::contact::collision_free_step(
             model.face.mesh(),
             &ya,
             &dy,
-            &crate::contact::CcdOptions::default(),
+            &crate::contact::CcdOptions {
+                min_distance: 0.5 * gap,
+                max_iterations: 1000,
+                ..crate::contact::CcdOptions::default()
+            },
         )?;
         Ok(report.step >= 1.0)
     }
@@ -618,6 +628,7 @@ fn merge_stages(last: &mut SolveStats, earlier: Option<SolveStats>, stages: usiz
     last.energy_history = history;
     if let (Some(c), Some(ec)) = (last.contact.as_mut(), e.contact) {
         c.ccd_limited_steps += ec.ccd_limited_steps;
+        c.candidate_builds += ec.candidate_builds;
         c.broad_phase_time += ec.broad_phase_time;
         c.barrier_time += ec.barrier_time;
         c.ccd_time += ec.ccd_time;
