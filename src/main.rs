@@ -100,8 +100,12 @@ fn main() -> Result<()> {
                         .context("building the neutral face")?
                 }
             };
-            eprintln!("benchmarking contact on {} ({frames} frames per row)…", face.name);
-            let rows = facesim::bench::contact::bench(&face, frames).context("contact benchmark")?;
+            eprintln!(
+                "benchmarking contact on {} ({frames} frames per row)…",
+                face.name
+            );
+            let rows =
+                facesim::bench::contact::bench(&face, frames).context("contact benchmark")?;
             print!("{}", facesim::bench::contact::table(&rows));
             if let Some(path) = json {
                 std::fs::write(&path, serde_json::to_string_pretty(&rows)?)

@@ -16,7 +16,10 @@ use facesim::sim::{BonePose, Quality, SimState, Simulator, SolveSettings, SymTen
 fn rig_dir() -> PathBuf {
     match std::env::var_os("FACESIM_RIG_DIR") {
         Some(d) => PathBuf::from(d),
-        None => PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../shared/data/ict-facekit")),
+        None => PathBuf::from(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../shared/data/ict-facekit"
+        )),
     }
 }
 
@@ -24,7 +27,7 @@ fn rig_dir() -> PathBuf {
 fn model() -> &'static FaceModel {
     static MODEL: OnceLock<FaceModel> = OnceLock::new();
     MODEL.get_or_init(|| {
-        let rig = FaceRig::load(&rig_dir()).expect("the ICT rig (set FACESIM_RIG_DIR)");
+        let rig = FaceRig::load(rig_dir()).expect("the ICT rig (set FACESIM_RIG_DIR)");
         build_face(&rig, None, &Lod::Coarse.settings()).expect("building the neutral face")
     })
 }
@@ -71,7 +74,12 @@ fn contact_region_is_the_mouth() {
     assert!(skin > 100 && socket > 100 && upper > 50 && lower > 50);
     // At rest nothing is within d̂ except the excluded pairs, so the barrier is zero.
     let mut y = vec![0.0; 3 * c.vertex_count()];
-    let x: Vec<f64> = model().mesh.vertices.iter().flat_map(|p| [p.x, p.y, p.z]).collect();
+    let x: Vec<f64> = model()
+        .mesh
+        .vertices
+        .iter()
+        .flat_map(|p| [p.x, p.y, p.z])
+        .collect();
     c.positions(&x, &BonePose::default(), &mut y);
     assert!(c.collisions(&y).unwrap().is_empty());
     assert!(c.new_crossings(&y).is_empty());
@@ -155,13 +163,20 @@ fn contact_off_is_the_plain_solve() {
         ..Quality::Interactive.settings()
     };
     let (mut a, mut b) = (sim.rest_state(), plain.rest_state());
-    let sa = sim.solve(&field().actuations(&pose), &pose.bones(), &mut a, &settings).unwrap();
-    let sb = plain.solve(&field().actuations(&pose), &pose.bones(), &mut b, &settings).unwrap();
+    let sa = sim
+        .solve(&field().actuations(&pose), &pose.bones(), &mut a, &settings)
+        .unwrap();
+    let sb = plain
+        .solve(&field().actuations(&pose), &pose.bones(), &mut b, &settings)
+        .unwrap();
     assert!(sa.contact.is_none() && sb.contact.is_none());
     assert_eq!(a.flat_positions(), b.flat_positions());
     // The sequence driver records every frame.
     let outcomes = run_sequence(&sim, 2, &Quality::Interactive.settings(), |_| {
-        (vec![SymTensor::IDENTITY; model().mesh.element_count()], BonePose::default())
+        (
+            vec![SymTensor::IDENTITY; model().mesh.element_count()],
+            BonePose::default(),
+        )
     });
     assert!(outcomes.iter().all(|o| o.result.is_ok()));
 }

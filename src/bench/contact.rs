@@ -103,7 +103,12 @@ pub fn bench(model: &FaceModel, frames: usize) -> Result<Vec<ContactBenchRow>, S
         rows.push(run(&sim, quality, true, Some(ContactStep::LowRankUpdate)));
     }
     sim.set_contact_step(ContactStep::Refactor);
-    rows.push(run(&sim, Quality::Interactive, true, Some(ContactStep::Refactor)));
+    rows.push(run(
+        &sim,
+        Quality::Interactive,
+        true,
+        Some(ContactStep::Refactor),
+    ));
     sim.set_contact_step(ContactStep::LowRankUpdate);
     Ok(rows)
 }

@@ -91,10 +91,8 @@ pub struct FaceContact {
 impl FaceContact {
     /// The contact region of `model` (see the module doc).
     pub fn new(model: &FaceModel, settings: &FaceContactSettings) -> Result<Self, ContactError> {
-        if !(settings.lip_reach > 0.0 && settings.teeth_reach >= 0.0)
-            || !settings.lip_reach.is_finite()
-            || !settings.teeth_reach.is_finite()
-        {
+        let finite = settings.lip_reach.is_finite() && settings.teeth_reach.is_finite();
+        if !(settings.lip_reach > 0.0 && settings.teeth_reach >= 0.0 && finite) {
             return Err(ContactError::InvalidParameter(format!(
                 "contact region reaches must be finite and positive, got {settings:?}"
             )));
@@ -193,7 +191,9 @@ impl FaceContact {
                 ContactBinding::Rigid {
                     bone: Bone::Skull, ..
                 } => ON_SKULL,
-                ContactBinding::Rigid { bone: Bone::Jaw, .. } => ON_JAW,
+                ContactBinding::Rigid {
+                    bone: Bone::Jaw, ..
+                } => ON_JAW,
             })
             .collect();
         let can_touch = [

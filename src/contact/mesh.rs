@@ -163,7 +163,8 @@ impl ContactMesh {
     /// Whether the edge–edge pair `(a, b)`, `a < b`, was left out.
     #[inline]
     pub fn excludes_edge_edge(&self, a: u32, b: u32) -> bool {
-        !self.excluded_edge_edge.is_empty() && self.excluded_edge_edge.binary_search(&(a, b)).is_ok()
+        !self.excluded_edge_edge.is_empty()
+            && self.excluded_edge_edge.binary_search(&(a, b)).is_ok()
     }
 
     /// Number of pairs left out (point–triangle, edge–edge).

@@ -195,7 +195,8 @@ impl Simulator {
                 } = binding
                 {
                     let jac = bones.jaw_target_jacobian(&self.config.jaw_pivot, rest);
-                    let hl = Vector3::new(h_lambda[3 * i], h_lambda[3 * i + 1], h_lambda[3 * i + 2]);
+                    let hl =
+                        Vector3::new(h_lambda[3 * i], h_lambda[3 * i + 1], h_lambda[3 * i + 2]);
                     let contribution = jac.transpose() * hl;
                     for k in 0..6 {
                         jaw[k] -= contribution[k];

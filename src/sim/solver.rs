@@ -560,12 +560,6 @@ impl Simulator {
                 std::mem::swap(&mut steps, &mut trial_steps);
                 energy = e;
                 residual = norm(&g) / scale;
-                if std::env::var_os("FACESIM_DEBUG_CONTACT").is_some() {
-                    eprintln!(
-                        "it {iterations}: alpha {alpha:.3e} energy {energy:.6e} residual {residual:.3e} κ {:?}",
-                        contact.as_ref().map(|c| c.potential.stiffness)
-                    );
-                }
                 iterations += 1;
                 energy_history.push(energy);
             }

@@ -92,19 +92,35 @@ impl Candidates {
         // primitives entirely inside them: it queries the smaller tree of those ("open").
         let split = mesh.groups_split_by_universal();
         let open_faces: Vec<u32> = (0..mesh.faces().len() as u32)
-            .filter(|&f| !split || mesh.faces()[f as usize].iter().all(|&v| mesh.touches_all(v)))
+            .filter(|&f| {
+                !split
+                    || mesh.faces()[f as usize]
+                        .iter()
+                        .all(|&v| mesh.touches_all(v))
+            })
             .collect();
         let open_edges: Vec<u32> = (0..mesh.edges().len() as u32)
-            .filter(|&e| !split || mesh.edges()[e as usize].iter().all(|&v| mesh.touches_all(v)))
+            .filter(|&e| {
+                !split
+                    || mesh.edges()[e as usize]
+                        .iter()
+                        .all(|&v| mesh.touches_all(v))
+            })
             .collect();
-        let subset_boxes =
-            |ids: &[u32], boxes: &[Box3]| ids.iter().map(|&i| boxes[i as usize]).collect::<Vec<_>>();
+        let subset_boxes = |ids: &[u32], boxes: &[Box3]| {
+            ids.iter().map(|&i| boxes[i as usize]).collect::<Vec<_>>()
+        };
         let face_tree = BoxTree::new(&face_boxes);
         let open_face_tree = BoxTree::new(&subset_boxes(&open_faces, &face_boxes));
         let edge_tree = BoxTree::new(&edge_boxes);
         let open_edge_tree = BoxTree::new(&subset_boxes(&open_edges, &edge_boxes));
         // Queries an open tree and maps its (sorted) local indices back (order is kept).
-        let query = |all: &BoxTree, open: &BoxTree, ids: &[u32], universal: bool, b: &Box3, out: &mut Vec<u32>| {
+        let query = |all: &BoxTree,
+                     open: &BoxTree,
+                     ids: &[u32],
+                     universal: bool,
+                     b: &Box3,
+                     out: &mut Vec<u32>| {
             if universal {
                 all.overlapping(b, out);
             } else {
@@ -125,7 +141,14 @@ impl Candidates {
                 let mut out = Vec::new();
                 for (&v, b) in verts.iter().zip(boxes) {
                     found.clear();
-                    query(&face_tree, &open_face_tree, &open_faces, !split || mesh.touches_all(v), b, &mut found);
+                    query(
+                        &face_tree,
+                        &open_face_tree,
+                        &open_faces,
+                        !split || mesh.touches_all(v),
+                        b,
+                        &mut found,
+                    );
                     for &f in &found {
                         let tri = faces[f as usize];
                         if !tri.contains(&v)
@@ -152,7 +175,14 @@ impl Candidates {
                     let [a0, a1] = edges[ea as usize];
                     found.clear();
                     let universal = !split || (mesh.touches_all(a0) && mesh.touches_all(a1));
-                    query(&edge_tree, &open_edge_tree, &open_edges, universal, b, &mut found);
+                    query(
+                        &edge_tree,
+                        &open_edge_tree,
+                        &open_edges,
+                        universal,
+                        b,
+                        &mut found,
+                    );
                     for &eb in found.iter().filter(|&&eb| eb > ea) {
                         let [b0, b1] = edges[eb as usize];
                         let shares = a0 == b0 || a0 == b1 || a1 == b0 || a1 == b1;
