@@ -73,6 +73,21 @@ enum BenchTarget {
         #[arg(long)]
         json: Option<PathBuf>,
     },
+    /// Contact on a face: per-frame time with contact on and off at each quality preset,
+    /// time in broad phase, barrier and CCD, low-rank update against refactoring.
+    Contact {
+        /// A face model file; without it the neutral coarse face is built from `--rig`.
+        #[arg(long)]
+        model: Option<PathBuf>,
+        #[arg(long, default_value = "../shared/data/ict-facekit")]
+        rig: PathBuf,
+        /// Frames of the slider drag.
+        #[arg(long, default_value_t = 12)]
+        frames: usize,
+        /// Also write the results as JSON here.
+        #[arg(long)]
+        json: Option<PathBuf>,
+    },
 }
 
 fn main() -> Result<()> {
@@ -90,6 +105,38 @@ fn main() -> Result<()> {
         } => sample(&rig, &out, &identities)?,
         Command::TrainMapping(args) => cli_mapping::train_mapping(&args)?,
         Command::Stats(args) => cli_mapping::stats(&args)?,
+        Command::Bench {
+            target:
+                BenchTarget::Contact {
+                    model,
+                    rig,
+                    frames,
+                    json,
+                },
+        } => {
+            let face = match model {
+                Some(path) => facesim::model::FaceModel::load(&path)
+                    .with_context(|| format!("loading {}", path.display()))?,
+                None => {
+                    eprintln!("building the neutral coarse face from {}…", rig.display());
+                    let rig = facesim::rig::FaceRig::load(&rig)
+                        .with_context(|| format!("loading the rig from {}", rig.display()))?;
+                    facesim::model::build_face(&rig, None, &facesim::model::Lod::Coarse.settings())
+                        .context("building the neutral face")?
+                }
+            };
+            eprintln!(
+                "benchmarking contact on {} ({frames} frames per row)…",
+                face.name
+            );
+            let rows =
+                facesim::bench::contact::bench(&face, frames).context("contact benchmark")?;
+            print!("{}", facesim::bench::contact::table(&rows));
+            if let Some(path) = json {
+                std::fs::write(&path, serde_json::to_string_pretty(&rows)?)
+                    .with_context(|| format!("writing {}", path.display()))?;
+            }
+        }
         Command::Bench {
             target:
                 BenchTarget::Solver {

@@ -1,2 +1,3 @@
 //! Benchmarks run by `facesim bench`.
+pub mod contact;
 pub mod solver;
