@@ -828,4 +828,37 @@ mod tests {
             Err(BuildError::NoSuchIdentity(99, 10))
         ));
     }
+
+    #[test]
+    fn every_identity_imports_valid_and_stays_at_rest_under_identity_actuation() {
+        let faces: Vec<&FaceModel> = std::iter::once(None)
+            .chain((0..rig().identity_count()).map(Some))
+            .map(crate::model::test_support::coarse_face)
+            .collect();
+        assert_eq!(faces.len(), 11);
+        for model in faces {
+            let (q, r) = (&model.quality, &model.report);
+            assert_eq!(r.intersections_after_repair, 0, "{}", model.name);
+            assert_eq!(q.inverted, 0, "{}", model.name);
+            assert!(q.min_dihedral_deg > 2.0, "{}: {q:?}", model.name);
+            assert!(
+                (4_000..6_500).contains(&q.elements),
+                "{}: {q:?}",
+                model.name
+            );
+            let sim = model.simulator().unwrap();
+            let mut state = sim.rest_state();
+            let rest = vec![SymTensor::IDENTITY; sim.element_count()];
+            let stats = sim
+                .solve(
+                    &rest,
+                    &BonePose::default(),
+                    &mut state,
+                    &Quality::Final.settings(),
+                )
+                .unwrap();
+            assert_eq!(stats.iterations, 0, "{}", model.name);
+            assert_eq!(state.positions(), model.mesh.vertices, "{}", model.name);
+        }
+    }
 }
