@@ -16,4 +16,5 @@ pub mod nn;
 pub mod rig;
 pub mod sample;
 pub mod scene;
+pub mod session;
 pub mod sim;

@@ -1,0 +1,126 @@
+//! Editor latency: slider change → new frame available, through the [`Session`] the editor
+//! uses (actuation, warm-started solve, render surface, normals, heatmaps), per quality preset.
+//!
+//! The slider path is a deterministic sweep of one expression slider (and its partner on the
+//! other side) in small steps, as a drag produces; each step waits for its frame before the
+//! next (refinement off), so every sample is one full slider-to-frame latency.
+
+use std::time::{Duration, Instant};
+
+use serde::Serialize;
+
+use crate::rig::ExpressionCode;
+use crate::session::{Request, Session, SessionError, SessionFace};
+use crate::sim::Quality;
+
+#[derive(Clone, Debug, Serialize)]
+pub struct LatencyRow {
+    pub face: String,
+    pub quality: Quality,
+    pub samples: usize,
+    pub median_ms: f64,
+    pub p95_ms: f64,
+    /// Median solver iterations per frame.
+    pub median_iterations: usize,
+    /// Frames whose solve failed (reported, never hidden).
+    pub errors: usize,
+}
+
+fn percentile(sorted: &[f64], p: f64) -> f64 {
+    let i = ((sorted.len() - 1) as f64 * p).round() as usize;
+    sorted[i]
+}
+
+/// The slider steps of one drag: `slider` from 0 to 1 and back in `steps` moves.
+pub fn drag(slider: &str, steps: usize) -> Vec<ExpressionCode> {
+    (0..steps)
+        .map(|k| {
+            let t = k as f64 / (steps / 2).max(1) as f64;
+            let w = if t <= 1.0 { t } else { 2.0 - t };
+            ExpressionCode::single(slider, w.clamp(0.0, 1.0)).expect("a code slider")
+        })
+        .collect()
+}
+
+/// Latency rows for `face` at every preset; `sliders` are dragged one after another.
+pub fn bench_latency(
+    face: SessionFace,
+    sliders: &[&str],
+    steps: usize,
+) -> Result<Vec<LatencyRow>, SessionError> {
+    let name = face.name.clone();
+    let mut rows = Vec::new();
+    for quality in Quality::ALL {
+        let session = Session::new(vec![face.clone()], quality)?;
+        session.submit(Request::Refine(false))?;
+        let timeout = Duration::from_secs(120);
+        session
+            .wait_newer(None, timeout)
+            .ok_or(SessionError::Stopped)?;
+        let (mut ms, mut iterations, mut errors) = (Vec::new(), Vec::new(), 0);
+        for slider in sliders {
+            for code in drag(slider, steps) {
+                let start = Instant::now();
+                let g = session.submit(Request::Expression(code))?;
+                let frame = session
+                    .wait_generation(g, timeout)
+                    .ok_or(SessionError::Stopped)?;
+                ms.push(start.elapsed().as_secs_f64() * 1e3);
+                iterations.push(frame.stats.iterations);
+                errors += usize::from(frame.error.is_some());
+            }
+        }
+        ms.sort_by(f64::total_cmp);
+        iterations.sort_unstable();
+        rows.push(LatencyRow {
+            face: name.clone(),
+            quality,
+            samples: ms.len(),
+            median_ms: percentile(&ms, 0.5),
+            p95_ms: percentile(&ms, 0.95),
+            median_iterations: iterations[iterations.len() / 2],
+            errors,
+        });
+    }
+    Ok(rows)
+}
+
+/// A markdown table of `rows`.
+pub fn table(rows: &[LatencyRow]) -> String {
+    let mut s = String::from(
+        "| face | preset | samples | median ms | p95 ms | median iterations | failed |\n|---|---|---:|---:|---:|---:|---:|\n",
+    );
+    for r in rows {
+        s += &format!(
+            "| {} | {} | {} | {:.1} | {:.1} | {} | {} |\n",
+            r.face, r.quality, r.samples, r.median_ms, r.p95_ms, r.median_iterations, r.errors
+        );
+    }
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_drag_goes_up_to_one_and_back() {
+        let d = drag("jawOpen", 10);
+        let w: Vec<f64> = d.iter().map(|c| c.get("jawOpen").unwrap()).collect();
+        assert_eq!(w[0], 0.0);
+        assert_eq!(w[5], 1.0);
+        assert!((w[9] - 0.2).abs() < 1e-12);
+    }
+
+    #[test]
+    fn latency_rows_cover_every_preset() {
+        let face = crate::session::tests::test_face("neutral");
+        let rows = bench_latency(face, &["jawOpen"], 4).unwrap();
+        assert_eq!(rows.len(), 3);
+        assert!(
+            rows.iter()
+                .all(|r| r.samples == 4 && r.errors == 0 && r.median_ms > 0.0)
+        );
+        assert!(table(&rows).contains("| neutral | interactive | 4 |"));
+    }
+}

@@ -1,0 +1,483 @@
+//! Session tests on the neutral coarse face built from the rig, driven by a small
+//! test-only actuation model (the app never ships it).
+
+use std::sync::{Arc, OnceLock};
+use std::time::Duration;
+
+use nalgebra::{Matrix3, Point3, Vector3};
+
+use super::*;
+use crate::drive::{Actuation, ActuationModel, Codes, DriveError};
+use crate::model::{FaceModel, Lod, build_face};
+use crate::rig::ExpressionCode;
+use crate::rig::style::StyleCode;
+use crate::rig::test_support::rig;
+use crate::sim::{Quality, RigidMotion, SymTensor};
+
+const WAIT: Duration = Duration::from_secs(60);
+
+pub(crate) fn neutral_coarse() -> Arc<FaceModel> {
+    static MODEL: OnceLock<Arc<FaceModel>> = OnceLock::new();
+    MODEL
+        .get_or_init(|| Arc::new(build_face(rig(), None, &Lod::Coarse.settings()).unwrap()))
+        .clone()
+}
+
+/// Test double: jawOpen rotates the jaw, mouthSmile_L contracts the tissue near the mouth
+/// along x, and mouthPucker ≥ 0.9 is refused (to exercise error frames).
+pub(crate) struct TestActuation {
+    weights: Vec<f64>,
+}
+
+impl TestActuation {
+    pub(crate) fn new(model: &FaceModel) -> Self {
+        let centroids: Vec<Point3<f64>> = model
+            .mesh
+            .tets
+            .iter()
+            .map(|t| {
+                let s: Vector3<f64> = t
+                    .iter()
+                    .map(|&v| model.mesh.vertices[v as usize].coords)
+                    .sum();
+                Point3::from(s / 4.0)
+            })
+            .collect();
+        let (lo, hi) = model.mesh.bounds();
+        // The mouth is low and in front: weight elements by closeness to that corner.
+        let mouth = Point3::new(0.5 * (lo.x + hi.x), lo.y + 0.35 * (hi.y - lo.y), hi.z);
+        let r = 0.25 * (hi - lo).norm();
+        let weights = centroids
+            .iter()
+            .map(|c| (-(c - mouth).norm_squared() / (r * r)).exp())
+            .collect();
+        TestActuation { weights }
+    }
+}
+
+impl ActuationModel for TestActuation {
+    fn element_count(&self) -> usize {
+        self.weights.len()
+    }
+    fn actuate(&self, codes: &Codes) -> Result<Actuation, DriveError> {
+        codes.validate()?;
+        let e = &codes.expression;
+        if e.get("mouthPucker").unwrap() >= 0.9 {
+            return Err(DriveError::BadTensor {
+                element: 0,
+                reason: "test model refuses mouthPucker ≥ 0.9".into(),
+            });
+        }
+        let smile = e.get("mouthSmile_L").unwrap() * (1.0 + 0.35 * codes.style.0[0]);
+        let tensors = self
+            .weights
+            .iter()
+            .map(|w| {
+                let mut m = Matrix3::identity();
+                m[(0, 0)] = 1.0 - 0.3 * smile * w;
+                SymTensor::from_matrix(&m)
+            })
+            .collect();
+        let jaw = RigidMotion {
+            rotation: Vector3::new(0.25 * e.get("jawOpen").unwrap(), 0.0, 0.0),
+            translation: Vector3::zeros(),
+        };
+        Ok(Actuation { tensors, jaw })
+    }
+}
+
+pub(crate) fn test_face(name: &str) -> SessionFace {
+    let model = neutral_coarse();
+    SessionFace {
+        name: name.into(),
+        identity: None,
+        default_style: StyleCode::NEUTRAL,
+        actuation: Arc::new(TestActuation::new(&model)),
+        model,
+    }
+}
+
+fn session(quality: Quality, refine: bool) -> Session {
+    let s = Session::new(vec![test_face("neutral"), test_face("other")], quality).unwrap();
+    s.submit(Request::Refine(refine)).unwrap();
+    s
+}
+
+fn expression(name: &str, w: f64) -> Request {
+    Request::Expression(ExpressionCode::single(name, w).unwrap())
+}
+
+fn max_distance(a: &[[f32; 3]], b: &[[f32; 3]]) -> f32 {
+    a.iter()
+        .zip(b)
+        .map(|(p, q)| (0..3).map(|k| (p[k] - q[k]).powi(2)).sum::<f32>().sqrt())
+        .fold(0.0, f32::max)
+}
+
+#[test]
+fn a_slider_change_gives_a_new_finite_frame_that_moves_the_face() {
+    let s = session(Quality::Interactive, false);
+    let first = s.wait_newer(None, WAIT).unwrap();
+    assert!(first.error.is_none(), "{:?}", first.error);
+    let model = neutral_coarse();
+    assert_eq!(first.positions.len(), model.render.rest.len());
+    assert_eq!(first.normals.len(), first.positions.len());
+    let g = s.submit(expression("jawOpen", 0.8)).unwrap();
+    let f = s.wait_generation(g, WAIT).unwrap();
+    assert!(f.error.is_none(), "{:?}", f.error);
+    assert_eq!(f.codes.expression.get("jawOpen"), Some(0.8));
+    assert!(
+        max_distance(&f.positions, &first.positions) > 0.3,
+        "the jaw must move the face"
+    );
+    assert!(f.positions.iter().flatten().all(|c| c.is_finite()));
+    assert_eq!(
+        f.heatmaps.len(),
+        2,
+        "displacement and volume ratio by default"
+    );
+    assert!(
+        f.heatmaps
+            .iter()
+            .all(|h| h.values.len() == f.positions.len())
+    );
+    assert!(f.stats.iterations > 0 && f.stats.total_ms > 0.0);
+}
+
+#[test]
+fn a_flood_of_requests_is_coalesced_into_few_solves() {
+    let s = session(Quality::Interactive, false);
+    s.wait_newer(None, WAIT).unwrap();
+    let solves = Arc::new(std::sync::atomic::AtomicUsize::new(0));
+    let counter = solves.clone();
+    s.on_frame(move |_| {
+        counter.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+    });
+    let mut last = 0;
+    for i in 1..=500 {
+        last = s
+            .submit(expression("mouthSmile_L", i as f64 / 500.0))
+            .unwrap();
+    }
+    let f = s.wait_generation(last, WAIT).unwrap();
+    assert_eq!(f.generation, last);
+    assert_eq!(
+        f.codes.expression.get("mouthSmile_L"),
+        Some(1.0),
+        "the latest request wins"
+    );
+    let n = solves.load(std::sync::atomic::Ordering::SeqCst);
+    assert!(n < 50, "{n} solves for 500 requests");
+}
+
+#[test]
+fn solves_warm_start_from_the_last_frame() {
+    let s = session(Quality::Final, false);
+    s.wait_newer(None, WAIT).unwrap();
+    let g = s.submit(expression("mouthSmile_L", 0.6)).unwrap();
+    let cold = s.wait_generation(g, WAIT).unwrap();
+    // Same inputs again via another generation (display change): starts at the solution.
+    let g = s
+        .submit(Request::Display(Display {
+            crosses: true,
+            heatmaps: true,
+        }))
+        .unwrap();
+    let warm = s.wait_generation(g, WAIT).unwrap();
+    assert!(cold.stats.iterations > 5, "{:?}", cold.stats);
+    assert!(
+        warm.stats.iterations <= 1,
+        "warm start must be at the solution: {:?}",
+        warm.stats
+    );
+    assert!(!warm.crosses.is_empty(), "the smile contracts elements");
+    assert!(warm.crosses.iter().all(|a| a.contraction > 0.0));
+}
+
+#[test]
+fn resting_inputs_are_refined_to_final_quality() {
+    let s = session(Quality::Interactive, true);
+    let g = s.submit(expression("mouthSmile_L", 0.7)).unwrap();
+    let first = s.wait_generation(g, WAIT).unwrap();
+    assert_eq!(first.quality, Quality::Interactive);
+    let fin = s
+        .wait_until_test(|f| f.generation == g && f.quality == Quality::Final)
+        .expect("refined to final");
+    assert!(
+        fin.stats.residual <= Quality::Final.settings().tolerance
+            || fin.stats.termination != crate::sim::Termination::Converged
+    );
+    assert!(fin.stats.residual <= first.stats.residual);
+}
+
+#[test]
+fn failures_become_error_frames_with_the_last_good_geometry_and_the_session_recovers() {
+    let s = session(Quality::Interactive, false);
+    let g = s.submit(expression("jawOpen", 0.5)).unwrap();
+    let good = s.wait_generation(g, WAIT).unwrap();
+    let g = s.submit(expression("mouthPucker", 0.95)).unwrap();
+    let bad = s.wait_generation(g, WAIT).unwrap();
+    let message = bad.error.as_deref().expect("an error frame");
+    assert!(message.contains("mouthPucker"), "{message}");
+    assert_eq!(
+        bad.positions, good.positions,
+        "the last good geometry stays"
+    );
+    assert!(bad.index > good.index);
+    let g = s.submit(expression("jawOpen", 0.5)).unwrap();
+    let again = s.wait_generation(g, WAIT).unwrap();
+    assert!(again.error.is_none());
+    assert!(max_distance(&again.positions, &good.positions) < 1e-3);
+}
+
+#[test]
+fn bad_requests_are_rejected_and_change_nothing() {
+    let s = session(Quality::Interactive, false);
+    let before = s.inputs();
+    let mut e = ExpressionCode::NEUTRAL;
+    e.0[3] = f64::NAN;
+    let err = s.submit(Request::Expression(e)).unwrap_err();
+    assert!(err.to_string().contains("jawForward"), "{err}");
+    assert!(matches!(
+        s.submit(Request::Face(7)),
+        Err(SessionError::FaceOutOfRange { index: 7, count: 2 })
+    ));
+    assert_eq!(s.inputs(), before);
+}
+
+#[test]
+fn the_same_requests_give_bitwise_the_same_frames() {
+    let run = || {
+        let s = session(Quality::Preview, false);
+        let mut frames = Vec::new();
+        for r in [
+            expression("jawOpen", 0.4),
+            expression("mouthSmile_L", 0.8),
+            Request::Face(1),
+            Request::Style(StyleCode([0.5, 0.0, 0.0, 0.0])),
+        ] {
+            let g = s.submit(r).unwrap();
+            frames.push(s.wait_generation(g, WAIT).unwrap());
+        }
+        frames
+    };
+    let (a, b) = (run(), run());
+    for (x, y) in a.iter().zip(&b) {
+        assert_eq!(x.positions, y.positions);
+        assert_eq!(x.heatmaps, y.heatmaps);
+        assert_eq!(x.stats.iterations, y.stats.iterations);
+    }
+    assert_eq!(a[2].face, 1);
+}
+
+impl Session {
+    fn wait_until_test(&self, done: impl Fn(&frame::Frame) -> bool) -> Option<Arc<frame::Frame>> {
+        let deadline = std::time::Instant::now() + WAIT;
+        let mut after = None;
+        while std::time::Instant::now() < deadline {
+            let f = self.wait_newer(after, Duration::from_secs(5))?;
+            if done(&f) {
+                return Some(f);
+            }
+            after = Some(f.index);
+        }
+        None
+    }
+}
+
+mod protocol_tests {
+    use std::io::{BufRead, BufReader, Write};
+    use std::net::{TcpListener, TcpStream};
+
+    use super::*;
+    use crate::session::client::Connection;
+    use crate::session::protocol::{Entries, Message, Reply};
+
+    fn server() -> (Arc<Session>, String) {
+        let s = Arc::new(session(Quality::Interactive, false));
+        let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+        let addr = listener.local_addr().unwrap().to_string();
+        let served = s.clone();
+        std::thread::spawn(move || crate::session::server::serve(listener, served));
+        (s, addr)
+    }
+
+    fn raw(addr: &str) -> (TcpStream, BufReader<TcpStream>) {
+        let s = TcpStream::connect(addr).unwrap();
+        let r = BufReader::new(s.try_clone().unwrap());
+        (s, r)
+    }
+
+    fn ask(out: &mut TcpStream, input: &mut BufReader<TcpStream>, line: &str) -> serde_json::Value {
+        out.write_all(line.as_bytes()).unwrap();
+        out.write_all(b"\n").unwrap();
+        let mut reply = String::new();
+        input.read_line(&mut reply).unwrap();
+        serde_json::from_str(&reply).unwrap()
+    }
+
+    #[test]
+    fn good_messages_set_inputs_and_return_frames() {
+        let (s, addr) = server();
+        let mut c = Connection::open(&addr).unwrap();
+        let Reply::Hello {
+            faces,
+            expression_names,
+            ..
+        } = c.request(&Message::Hello).unwrap()
+        else {
+            panic!("hello")
+        };
+        assert_eq!(faces.len(), 2);
+        assert_eq!(expression_names.len(), 19);
+        let reply = c
+            .request(&Message::SetCodes {
+                expression: Some(Entries::Named([("jawOpen".to_string(), 0.6)].into())),
+                style: None,
+            })
+            .unwrap();
+        let Reply::Ok { generation } = reply else {
+            panic!("{reply:?}")
+        };
+        assert_eq!(s.inputs().codes.expression.get("jawOpen"), Some(0.6));
+        let f = s.wait_generation(generation, WAIT).unwrap();
+        let Reply::Frame { frame } = c
+            .request(&Message::GetFrame {
+                after: Some(f.index - 1),
+                timeout_ms: Some(5000),
+                geometry: Some(true),
+            })
+            .unwrap()
+        else {
+            panic!("frame")
+        };
+        assert_eq!(frame.codes.expression.get("jawOpen"), Some(0.6));
+        assert_eq!(frame.positions.len(), neutral_coarse().render.rest.len());
+        let Reply::Topology { topology, .. } =
+            c.request(&Message::GetTopology { face: 1 }).unwrap()
+        else {
+            panic!("topology")
+        };
+        assert_eq!(topology.rest.len(), frame.positions.len());
+    }
+
+    #[test]
+    fn bad_messages_get_clear_errors_and_change_nothing() {
+        let (s, addr) = server();
+        let (mut out, mut input) = raw(&addr);
+        let before = s.inputs();
+        for (line, needle) in [
+            ("not json", "malformed"),
+            (r#"{"op":"fly"}"#, "unknown variant"),
+            (
+                r#"{"op":"set_codes","expression":{"jawOpen":1.5}}"#,
+                "outside [0, 1]",
+            ),
+            (
+                r#"{"op":"set_codes","expression":{"smirk":0.5}}"#,
+                "unknown expression entry 'smirk'",
+            ),
+            (
+                r#"{"op":"set_codes","expression":[0.1,0.2]}"#,
+                "needs 19 values",
+            ),
+            (
+                r#"{"op":"set_codes","style":{"jaw":-3}}"#,
+                "outside [-1, 1]",
+            ),
+            (r#"{"op":"set_codes"}"#, "needs `expression`"),
+            (r#"{"op":"set_face","face":9}"#, "out of range"),
+            (r#"{"op":"set_face","face":"nobody"}"#, "no face"),
+            (
+                r#"{"op":"set_quality","quality":"ultra"}"#,
+                "unknown variant",
+            ),
+            (r#"{"op":"get_topology","face":5}"#, "out of range"),
+            (
+                r#"{"op":"get_frame","timeout_ms":999999}"#,
+                "over the limit",
+            ),
+            (r#"{"op":"set_display","crosess":true}"#, "unknown field"),
+        ] {
+            let reply = ask(&mut out, &mut input, line);
+            assert_eq!(reply["reply"], "error", "{line} → {reply}");
+            let message = reply["message"].as_str().unwrap();
+            assert!(message.contains(needle), "{line} → {message}");
+        }
+        assert_eq!(s.inputs(), before, "rejected messages change nothing");
+        // The connection still works after errors.
+        assert_eq!(
+            ask(
+                &mut out,
+                &mut input,
+                r#"{"op":"set_quality","quality":"preview"}"#
+            )["reply"],
+            "ok"
+        );
+        assert_eq!(s.inputs().quality, Quality::Preview);
+        // An over-long line is refused and the connection closed.
+        let long = format!("{{\"op\":\"hello\",\"pad\":\"{}\"}}", "x".repeat(70_000));
+        let reply = ask(&mut out, &mut input, &long);
+        assert!(reply["message"].as_str().unwrap().contains("longer than"));
+    }
+
+    #[test]
+    fn floods_coalesce_and_disconnects_leave_other_clients_working() {
+        let (s, addr) = server();
+        s.wait_newer(None, WAIT).unwrap();
+        let frames = Arc::new(std::sync::atomic::AtomicUsize::new(0));
+        let counter = frames.clone();
+        s.on_frame(move |_| {
+            counter.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+        });
+        // A client that connects, sends half a line and vanishes.
+        {
+            let mut gone = TcpStream::connect(&addr).unwrap();
+            gone.write_all(br#"{"op":"set_co"#).unwrap();
+        }
+        // Another that asks for a frame and disconnects without reading the reply.
+        {
+            let mut gone = TcpStream::connect(&addr).unwrap();
+            gone.write_all(b"{\"op\":\"get_frame\",\"timeout_ms\":100}\n")
+                .unwrap();
+        }
+        // Two clients flood the same slider: all lines at once, replies read afterwards.
+        let flood = |addr: String, offset: f64| {
+            std::thread::spawn(move || {
+                let (mut out, mut input) = raw(&addr);
+                let lines: String = (0..300)
+                    .map(|i| {
+                        let w = offset + 0.5 * i as f64 / 299.0;
+                        format!(
+                            "{{\"op\":\"set_codes\",\"expression\":{{\"mouthSmile_L\":{w}}}}}\n"
+                        )
+                    })
+                    .collect();
+                out.write_all(lines.as_bytes()).unwrap();
+                for _ in 0..300 {
+                    let mut reply = String::new();
+                    input.read_line(&mut reply).unwrap();
+                    assert!(reply.contains("\"ok\""), "{reply}");
+                }
+            })
+        };
+        let (a, b) = (flood(addr.clone(), 0.0), flood(addr.clone(), 0.5));
+        a.join().unwrap();
+        b.join().unwrap();
+        let g = s.submit(Request::Refine(false)).unwrap();
+        let last = s.wait_generation(g, WAIT).unwrap();
+        let w = last.codes.expression.get("mouthSmile_L").unwrap();
+        assert!(
+            w == 0.5 || w == 1.0,
+            "one of the floods' last values wins, got {w}"
+        );
+        let n = frames.load(std::sync::atomic::Ordering::SeqCst);
+        assert!(n < 150, "600 slider messages must coalesce, got {n} frames");
+        // The server still answers new clients.
+        let mut c = Connection::open(&addr).unwrap();
+        assert!(matches!(
+            c.request(&Message::Hello).unwrap(),
+            Reply::Hello { .. }
+        ));
+    }
+}

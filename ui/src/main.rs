@@ -1,0 +1,112 @@
+//! `facesim-editor`: the interactive editor (`cargo run --release` at the repository root),
+//! and `serve`, the headless session for remote editors and scripts.
+
+
+use std::net::TcpListener;
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use anyhow::{Context, Result};
+use clap::{Parser, Subcommand};
+use facesim::session::client::RemoteSession;
+use facesim::session::{Session, SessionHandle};
+use facesim::sim::Quality;
+
+use facesim_ui::rerun_log::{RerunLogger, RerunTarget};
+use facesim_ui::{app, faces};
+
+#[derive(Parser)]
+#[command(
+    name = "facesim-editor",
+    about = "Edit a physically simulated face with expression and style sliders"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Option<Command>,
+    /// The sample directory to open.
+    #[arg(long, default_value = faces::SAMPLE_DIR, global = true)]
+    sample: PathBuf,
+    /// Talk to a `facesim-editor serve` session at this address instead of simulating here.
+    #[arg(long)]
+    remote: Option<String>,
+    /// Also stream frames to rerun: `spawn`, `connect [URL]` or `save FILE.rrd`.
+    #[arg(long, global = true, num_args = 1..=2, value_names = ["MODE", "ARG"])]
+    rerun: Vec<String>,
+    /// Quality preset to start with.
+    #[arg(long, default_value = "interactive", global = true)]
+    quality: Quality,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Run the session headless and serve the remote protocol (README, "Remote mode").
+    Serve {
+        /// Address to listen on, e.g. 127.0.0.1:7878.
+        #[arg(long)]
+        listen: String,
+    },
+}
+
+/// Logs every frame of `session` to rerun.
+fn attach_rerun(session: &dyn SessionHandle, target: &RerunTarget) -> Result<()> {
+    let logger = Arc::new(RerunLogger::new(target)?);
+    let topologies: Vec<_> = (0..session.face_infos().len())
+        .filter_map(|i| session.topology(i))
+        .collect();
+    session.on_new_frame(Box::new(move |frame| {
+        if let Some(t) = topologies.get(frame.face)
+            && let Err(e) = logger.log(frame, t)
+        {
+            eprintln!("rerun: {e:#}");
+        }
+    }));
+    Ok(())
+}
+
+fn main() -> Result<()> {
+    let cli = Cli::parse();
+    let rerun = match cli.rerun.as_slice() {
+        [] => None,
+        words => Some(
+            words
+                .join("=")
+                .parse::<RerunTarget>()
+                .map_err(anyhow::Error::msg)?,
+        ),
+    };
+    match cli.command {
+        Some(Command::Serve { listen }) => {
+            let faces = faces::load_sample(&cli.sample)?;
+            let session = Arc::new(Session::new(faces, cli.quality)?);
+            if let Some(t) = &rerun {
+                attach_rerun(session.as_ref(), t)?;
+            }
+            let listener =
+                TcpListener::bind(&listen).with_context(|| format!("listening on {listen}"))?;
+            eprintln!("facesim session listening on {}", listener.local_addr()?);
+            facesim::session::server::serve(listener, session)?;
+            Ok(())
+        }
+        None => {
+            let session: Arc<dyn SessionHandle> = match &cli.remote {
+                Some(addr) => Arc::new(RemoteSession::connect(addr)?),
+                None => Arc::new(Session::new(faces::load_sample(&cli.sample)?, cli.quality)?),
+            };
+            if let Some(t) = &rerun {
+                attach_rerun(session.as_ref(), t)?;
+            }
+            let options = eframe::NativeOptions {
+                viewport: egui::ViewportBuilder::default()
+                    .with_title("facesim")
+                    .with_inner_size([1400.0, 900.0]),
+                ..Default::default()
+            };
+            eframe::run_native(
+                "facesim",
+                options,
+                Box::new(move |cc| Ok(Box::new(app::EditorApp::new(cc, session)))),
+            )
+            .map_err(|e| anyhow::anyhow!("the editor window failed: {e}"))
+        }
+    }
+}

@@ -1,0 +1,167 @@
+//! Streaming frames to a rerun viewer (spawned, over gRPC) or into an `.rrd` file.
+//!
+//! Entities: `face/skin` (a mesh: static triangles, per-frame positions and normals),
+//! `face/heatmaps/<field>` (the same mesh with that field's vertex colours), `face/crosses`
+//! (actuation crosses as line strips), `face/jaw` (the jaw's rigid transform about its
+//! pivot), and `solver/{iterations,residual,solve_ms,frame_ms}` scalars; all per-frame data on
+//! the `frame` timeline (the session's frame index).
+
+use std::sync::Mutex;
+
+use anyhow::{Context, Result};
+use facesim::session::{FaceTopology, Frame};
+use rerun::components::{Color, Position3D, TriangleIndices, Vector3D};
+
+/// Where to stream.
+#[derive(Clone, Debug, PartialEq)]
+pub enum RerunTarget {
+    Spawn,
+    Connect(String),
+    Save(std::path::PathBuf),
+}
+
+impl std::str::FromStr for RerunTarget {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        if s == "spawn" {
+            Ok(RerunTarget::Spawn)
+        } else if let Some(url) = s.strip_prefix("connect=") {
+            Ok(RerunTarget::Connect(url.into()))
+        } else if s == "connect" {
+            Ok(RerunTarget::Connect(
+                "rerun+http://127.0.0.1:9876/proxy".into(),
+            ))
+        } else if let Some(path) = s.strip_prefix("save=") {
+            Ok(RerunTarget::Save(path.into()))
+        } else {
+            Err(format!(
+                "unknown rerun target '{s}' (expected spawn, connect, connect=URL or save=FILE)"
+            ))
+        }
+    }
+}
+
+/// Logs frames to one recording.
+pub struct RerunLogger {
+    rec: rerun::RecordingStream,
+    /// Face whose static triangles were logged last.
+    static_face: Mutex<Option<usize>>,
+}
+
+fn pos(p: &[f32; 3]) -> Position3D {
+    Position3D::new(p[0], p[1], p[2])
+}
+
+impl RerunLogger {
+    pub fn new(target: &RerunTarget) -> Result<Self> {
+        let builder = rerun::RecordingStreamBuilder::new("facesim");
+        let rec = match target {
+            RerunTarget::Spawn => builder.spawn().context(
+                "spawning the rerun viewer (is `rerun` on PATH? pip install rerun-sdk==0.36.3)",
+            )?,
+            RerunTarget::Connect(url) => builder
+                .connect_grpc_opts(url.clone())
+                .with_context(|| format!("connecting to the rerun viewer at {url}"))?,
+            RerunTarget::Save(path) => builder
+                .save(path)
+                .with_context(|| format!("creating {}", path.display()))?,
+        };
+        Ok(RerunLogger {
+            rec,
+            static_face: Mutex::new(None),
+        })
+    }
+
+    /// Logs one frame (and the face's static triangles when the face changes).
+    pub fn log(&self, frame: &Frame, topology: &FaceTopology) -> Result<()> {
+        let rec = &self.rec;
+        let tris: Vec<TriangleIndices> = topology
+            .triangles
+            .iter()
+            .map(|t| TriangleIndices::from((t[0], t[1], t[2])))
+            .collect();
+        {
+            let mut face = self.static_face.lock().unwrap_or_else(|e| e.into_inner());
+            if *face != Some(frame.face) {
+                rec.log_static(
+                    "face/skin",
+                    &rerun::Mesh3D::update_fields().with_triangle_indices(tris.clone()),
+                )?;
+                for h in &frame.heatmaps {
+                    rec.log_static(
+                        format!("face/heatmaps/{}", entity_name(&h.name)),
+                        &rerun::Mesh3D::update_fields().with_triangle_indices(tris.clone()),
+                    )?;
+                }
+                *face = Some(frame.face);
+            }
+        }
+        rec.set_time_sequence("frame", frame.index as i64);
+        let positions: Vec<Position3D> = frame.positions.iter().map(pos).collect();
+        let normals: Vec<Vector3D> = frame
+            .normals
+            .iter()
+            .map(|n| Vector3D::from((n[0], n[1], n[2])))
+            .collect();
+        rec.log(
+            "face/skin",
+            &rerun::Mesh3D::update_fields()
+                .with_vertex_positions(positions.clone())
+                .with_vertex_normals(normals.clone()),
+        )?;
+        for h in &frame.heatmaps {
+            let colors: Vec<Color> = h
+                .colors()
+                .into_iter()
+                .map(|[r, g, b]| Color::from_rgb(r, g, b))
+                .collect();
+            rec.log(
+                format!("face/heatmaps/{}", entity_name(&h.name)),
+                &rerun::Mesh3D::update_fields()
+                    .with_vertex_positions(positions.clone())
+                    .with_vertex_normals(normals.clone())
+                    .with_vertex_colors(colors),
+            )?;
+        }
+        let strips: Vec<Vec<Position3D>> = frame
+            .crosses
+            .iter()
+            .map(|a| vec![pos(&a.from), pos(&a.to)])
+            .collect();
+        rec.log("face/crosses", &rerun::LineStrips3D::new(strips))?;
+        let r = frame.jaw.rotation_matrix();
+        let cols: [[f32; 3]; 3] =
+            std::array::from_fn(|c| std::array::from_fn(|k| r[(k, c)] as f32));
+        // p ↦ R(p − pivot) + pivot + t, as one affine map: translation pivot + t − R·pivot.
+        let pivot = nalgebra::Vector3::from(topology.jaw_pivot.map(f64::from));
+        let t = pivot + frame.jaw.translation - r * pivot;
+        rec.log(
+            "face/jaw",
+            &rerun::Transform3D::from_translation_mat3x3(
+                (t.x as f32, t.y as f32, t.z as f32),
+                cols,
+            ),
+        )?;
+        let s = &frame.stats;
+        for (name, v) in [
+            ("iterations", s.iterations as f64),
+            ("residual", s.residual),
+            ("solve_ms", s.solve_ms),
+            ("frame_ms", s.total_ms),
+        ] {
+            rec.log(format!("solver/{name}"), &rerun::Scalars::new([v]))?;
+        }
+        Ok(())
+    }
+
+    pub fn flush(&self) {
+        let _ = self.rec.flush_blocking();
+    }
+}
+
+/// An entity path part from a field name ("volume ratio det F" → "volume_ratio_det_F").
+pub fn entity_name(name: &str) -> String {
+    name.chars()
+        .map(|c| if c.is_ascii_alphanumeric() { c } else { '_' })
+        .collect()
+}
