@@ -60,6 +60,21 @@ enum Command {
 
 #[derive(Subcommand)]
 enum BenchTarget {
+    /// Editor latency on the sample: slider change → new frame available through the session,
+    /// per quality preset (each drag step waits for its frame).
+    Editor {
+        #[arg(long, default_value = facesim::sample::SAMPLE_DIR)]
+        sample: PathBuf,
+        /// Sample faces to measure.
+        #[arg(long, value_delimiter = ',', default_values_t = ["neutral".to_string()])]
+        faces: Vec<String>,
+        /// Sliders dragged 0 → 1 → 0, one after another.
+        #[arg(long, value_delimiter = ',', default_values_t = ["jawOpen".to_string(), "mouthSmile_L".to_string(), "mouthPucker".to_string()])]
+        sliders: Vec<String>,
+        /// Steps per drag.
+        #[arg(long, default_value_t = 20)]
+        steps: usize,
+    },
     /// The quasistatic solver on generated slabs: factorization, iteration cost against its
     /// floor, time to tolerance from rest and warm-started.
     Solver {
@@ -139,6 +154,15 @@ fn main() -> Result<()> {
         }
         Command::Bench {
             target:
+                BenchTarget::Editor {
+                    sample,
+                    faces,
+                    sliders,
+                    steps,
+                },
+        } => bench_editor(&sample, &faces, &sliders, steps)?,
+        Command::Bench {
+            target:
                 BenchTarget::Solver {
                     elements,
                     samples,
@@ -160,6 +184,39 @@ fn main() -> Result<()> {
             }
         }
     }
+    Ok(())
+}
+
+/// `facesim bench editor`.
+fn bench_editor(
+    sample_dir: &std::path::Path,
+    faces: &[String],
+    sliders: &[String],
+    steps: usize,
+) -> Result<()> {
+    let sample = facesim::sample::Sample::load(sample_dir)
+        .with_context(|| format!("loading the sample from {}", sample_dir.display()))?;
+    let sliders: Vec<&str> = sliders.iter().map(String::as_str).collect();
+    for s in &sliders {
+        anyhow::ensure!(
+            facesim::rig::ExpressionCode::index_of(s).is_some(),
+            "'{s}' is not an expression slider ({})",
+            facesim::rig::ExpressionCode::NAMES.join(", ")
+        );
+    }
+    let mut rows = Vec::new();
+    for name in faces {
+        let face = sample
+            .session_faces()
+            .into_iter()
+            .find(|f| &f.name == name)
+            .with_context(|| format!("the sample has no face '{name}'"))?;
+        eprintln!("measuring {name}…");
+        rows.extend(facesim::bench::editor::bench_latency(
+            face, &sliders, steps,
+        )?);
+    }
+    print!("{}", facesim::bench::editor::table(&rows));
     Ok(())
 }
 

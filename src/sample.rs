@@ -148,6 +148,20 @@ impl Sample {
         Ok(Self { dir, faces })
     }
 
+    /// The faces as the editor's session takes them.
+    pub fn session_faces(&self) -> Vec<crate::session::SessionFace> {
+        self.faces
+            .iter()
+            .map(|f| crate::session::SessionFace {
+                name: f.name.clone(),
+                identity: f.identity,
+                default_style: f.style,
+                model: Arc::new(f.model.clone()),
+                actuation: f.actuation.clone(),
+            })
+            .collect()
+    }
+
     /// The face named `name`.
     pub fn face(&self, name: &str) -> Option<&SampleFace> {
         self.faces.iter().find(|f| f.name == name)
