@@ -5,6 +5,8 @@ use std::path::PathBuf;
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
 
+mod cli_mapping;
+
 #[derive(Parser)]
 #[command(
     name = "facesim",
@@ -33,6 +35,22 @@ enum Command {
         #[arg(long, value_delimiter = ',', default_values_t = [facesim::model::Lod::Coarse])]
         lod: Vec<facesim::model::Lod>,
     },
+    /// Build the bundled sample (template + a few identities, coarse, with fitted actuation
+    /// bases); then train its mappings with `train-mapping --faces OUT`.
+    Sample {
+        #[arg(long, default_value = "../shared/data/ict-facekit")]
+        rig: PathBuf,
+        #[arg(long, default_value = facesim::sample::SAMPLE_DIR)]
+        out: PathBuf,
+        /// Rig identities besides the template.
+        #[arg(long, value_delimiter = ',', default_values_t = facesim::sample::SAMPLE_IDENTITIES)]
+        identities: Vec<usize>,
+    },
+    /// Train the mapping networks φ (identity → canonical face) of the faces in a folder.
+    TrainMapping(cli_mapping::TrainArgs),
+    /// Mapping-function statistics (Fig. 3 heatmaps, CSVs, per-vertex values) and, with
+    /// `--warp`, the warp-versus-naive comparison.
+    Stats(cli_mapping::StatsArgs),
     /// Measure performance (results are medians of repeated runs).
     Bench {
         #[command(subcommand)]
@@ -42,6 +60,21 @@ enum Command {
 
 #[derive(Subcommand)]
 enum BenchTarget {
+    /// Editor latency on the sample: slider change → new frame available through the session,
+    /// per quality preset (each drag step waits for its frame).
+    Editor {
+        #[arg(long, default_value = facesim::sample::SAMPLE_DIR)]
+        sample: PathBuf,
+        /// Sample faces to measure.
+        #[arg(long, value_delimiter = ',', default_values_t = ["neutral".to_string()])]
+        faces: Vec<String>,
+        /// Sliders dragged 0 → 1 → 0, one after another.
+        #[arg(long, value_delimiter = ',', default_values_t = ["jawOpen".to_string(), "mouthSmile_L".to_string(), "mouthPucker".to_string()])]
+        sliders: Vec<String>,
+        /// Steps per drag.
+        #[arg(long, default_value_t = 20)]
+        steps: usize,
+    },
     /// The quasistatic solver on generated slabs: factorization, iteration cost against its
     /// floor, time to tolerance from rest and warm-started.
     Solver {
@@ -51,6 +84,21 @@ enum BenchTarget {
         /// Timing samples per measurement.
         #[arg(long, default_value_t = 7)]
         samples: usize,
+        /// Also write the results as JSON here.
+        #[arg(long)]
+        json: Option<PathBuf>,
+    },
+    /// Contact on a face: per-frame time with contact on and off at each quality preset,
+    /// time in broad phase, barrier and CCD, low-rank update against refactoring.
+    Contact {
+        /// A face model file; without it the neutral coarse face is built from `--rig`.
+        #[arg(long)]
+        model: Option<PathBuf>,
+        #[arg(long, default_value = "../shared/data/ict-facekit")]
+        rig: PathBuf,
+        /// Frames of the slider drag.
+        #[arg(long, default_value_t = 12)]
+        frames: usize,
         /// Also write the results as JSON here.
         #[arg(long)]
         json: Option<PathBuf>,
@@ -65,6 +113,54 @@ fn main() -> Result<()> {
             identities,
             lod,
         } => import(&rig, &out, &identities, &lod)?,
+        Command::Sample {
+            rig,
+            out,
+            identities,
+        } => sample(&rig, &out, &identities)?,
+        Command::TrainMapping(args) => cli_mapping::train_mapping(&args)?,
+        Command::Stats(args) => cli_mapping::stats(&args)?,
+        Command::Bench {
+            target:
+                BenchTarget::Contact {
+                    model,
+                    rig,
+                    frames,
+                    json,
+                },
+        } => {
+            let face = match model {
+                Some(path) => facesim::model::FaceModel::load(&path)
+                    .with_context(|| format!("loading {}", path.display()))?,
+                None => {
+                    eprintln!("building the neutral coarse face from {}…", rig.display());
+                    let rig = facesim::rig::FaceRig::load(&rig)
+                        .with_context(|| format!("loading the rig from {}", rig.display()))?;
+                    facesim::model::build_face(&rig, None, &facesim::model::Lod::Coarse.settings())
+                        .context("building the neutral face")?
+                }
+            };
+            eprintln!(
+                "benchmarking contact on {} ({frames} frames per row)…",
+                face.name
+            );
+            let rows =
+                facesim::bench::contact::bench(&face, frames).context("contact benchmark")?;
+            print!("{}", facesim::bench::contact::table(&rows));
+            if let Some(path) = json {
+                std::fs::write(&path, serde_json::to_string_pretty(&rows)?)
+                    .with_context(|| format!("writing {}", path.display()))?;
+            }
+        }
+        Command::Bench {
+            target:
+                BenchTarget::Editor {
+                    sample,
+                    faces,
+                    sliders,
+                    steps,
+                },
+        } => bench_editor(&sample, &faces, &sliders, steps)?,
         Command::Bench {
             target:
                 BenchTarget::Solver {
@@ -91,15 +187,51 @@ fn main() -> Result<()> {
     Ok(())
 }
 
-/// `facesim import`: loads and validates the rig, builds each identity at each level of
-/// detail, writes the models and prints what the importer did.
-fn import(
-    rig_dir: &std::path::Path,
-    out: &std::path::Path,
-    identities: &[String],
-    lods: &[facesim::model::Lod],
+/// `facesim bench editor`.
+fn bench_editor(
+    sample_dir: &std::path::Path,
+    faces: &[String],
+    sliders: &[String],
+    steps: usize,
 ) -> Result<()> {
-    use facesim::model::build_face;
+    let sample = facesim::sample::Sample::load(sample_dir)
+        .with_context(|| format!("loading the sample from {}", sample_dir.display()))?;
+    let sliders: Vec<&str> = sliders.iter().map(String::as_str).collect();
+    for s in &sliders {
+        anyhow::ensure!(
+            facesim::rig::ExpressionCode::index_of(s).is_some(),
+            "'{s}' is not an expression slider ({})",
+            facesim::rig::ExpressionCode::NAMES.join(", ")
+        );
+    }
+    let mut rows = Vec::new();
+    for name in faces {
+        let face = sample
+            .session_faces()
+            .into_iter()
+            .find(|f| &f.name == name)
+            .with_context(|| format!("the sample has no face '{name}'"))?;
+        eprintln!("measuring {name}…");
+        rows.extend(facesim::bench::editor::bench_latency(
+            face, &sliders, steps,
+        )?);
+    }
+    print!("{}", facesim::bench::editor::table(&rows));
+    Ok(())
+}
+
+/// A spinner that shows the current step and the time spent.
+fn spinner() -> indicatif::ProgressBar {
+    let bar = indicatif::ProgressBar::new_spinner();
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{spinner} [{elapsed_precise}] {msg}")
+            .expect("valid template"),
+    );
+    bar.enable_steady_tick(std::time::Duration::from_millis(120));
+    bar
+}
+
+fn load_rig(rig_dir: &std::path::Path) -> Result<facesim::rig::FaceRig> {
     eprintln!("loading the rig from {}…", rig_dir.display());
     let rig = facesim::rig::FaceRig::load_with_progress(rig_dir, &|p| {
         eprint!("\r  {}/{} {}\x1b[K", p.done, p.total, p.file.display())
@@ -111,6 +243,58 @@ fn import(
         rig.identity_count(),
         rig.load_time().as_secs_f64()
     );
+    Ok(rig)
+}
+
+/// `facesim sample`: builds the bundled sample and prints how well each face's actuation
+/// basis fits the rig.
+fn sample(rig_dir: &std::path::Path, out: &std::path::Path, identities: &[usize]) -> Result<()> {
+    use facesim::sample::{SAMPLE_LOD, write_sample};
+    let rig = load_rig(rig_dir)?;
+    let bar = spinner();
+    let manifest = write_sample(&rig, out, identities, SAMPLE_LOD, &|m| {
+        bar.set_message(m.to_string())
+    })
+    .with_context(|| format!("building the sample in {}", out.display()))?;
+    bar.finish_and_clear();
+    println!(
+        "| face | elements | basis skin error (RMS / max, mm) | jaw fit RMS (mm) | clamped elements |"
+    );
+    println!("|---|---:|---|---:|---:|");
+    for entry in &manifest.faces {
+        let model = facesim::model::FaceModel::load(&out.join(&entry.face))?;
+        let basis = facesim::drive::basis::ActuationBasis::load(&out.join(&entry.basis))?;
+        let rms = basis.fits.iter().map(|f| f.skin_rms).fold(0.0, f64::max);
+        let max = basis.fits.iter().map(|f| f.skin_max).fold(0.0, f64::max);
+        let jaw = basis.fits.iter().map(|f| f.jaw_rms).fold(0.0, f64::max);
+        let clamped: usize = basis.fits.iter().map(|f| f.clamped).sum();
+        println!(
+            "| {} | {} | ≤ {:.3} / {:.3} | ≤ {:.3} | {clamped} |",
+            entry.name,
+            model.mesh.element_count(),
+            10.0 * rms,
+            10.0 * max,
+            10.0 * jaw
+        );
+    }
+    eprintln!(
+        "wrote {}; next: train its mappings with `train-mapping --faces {}`",
+        out.display(),
+        out.display()
+    );
+    Ok(())
+}
+
+/// `facesim import`: loads and validates the rig, builds each identity at each level of
+/// detail, writes the models and prints what the importer did.
+fn import(
+    rig_dir: &std::path::Path,
+    out: &std::path::Path,
+    identities: &[String],
+    lods: &[facesim::model::Lod],
+) -> Result<()> {
+    use facesim::model::build_face;
+    let rig = load_rig(rig_dir)?;
     let mut chosen: Vec<Option<usize>> = Vec::new();
     for id in identities {
         match id.as_str() {
@@ -139,9 +323,11 @@ fn import(
     for lod in lods {
         for &identity in &chosen {
             let label = identity.map_or("neutral".to_string(), |i| format!("identity{i:03}"));
-            eprintln!("building {label} at {} detail…", lod.name());
+            let bar = spinner();
+            bar.set_message(format!("building {label} at {} detail", lod.name()));
             let model = build_face(&rig, identity, &lod.settings())
                 .with_context(|| format!("building {label}"))?;
+            bar.finish_and_clear();
             let path = out.join(format!("{label}-{}.face", lod.name()));
             model.save(&path)?;
             let (q, r) = (&model.quality, &model.report);

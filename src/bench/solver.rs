@@ -90,6 +90,7 @@ pub fn bench_size(elements: usize, samples: usize) -> Result<SolverBenchRow, Sim
             tolerance: 1e-9,
             max_iterations: 5000,
             history: 8,
+            contact: true,
         },
     )?;
 

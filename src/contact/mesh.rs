@@ -23,6 +23,10 @@ pub struct ContactMesh {
     /// `can_touch[g·groups + h]`.
     can_touch: Vec<bool>,
     groups: usize,
+    /// Point–triangle pairs `(vertex, face)` left out of contact, sorted.
+    excluded_point_triangle: Vec<(u32, u32)>,
+    /// Edge–edge pairs `(edge a, edge b)`, `a < b`, left out of contact, sorted.
+    excluded_edge_edge: Vec<(u32, u32)>,
 }
 
 impl ContactMesh {
@@ -119,7 +123,56 @@ impl ContactMesh {
             group,
             can_touch: can_touch.iter().flatten().copied().collect(),
             groups,
+            excluded_point_triangle: Vec::new(),
+            excluded_edge_edge: Vec::new(),
         })
+    }
+
+    /// The same surface with individual pairs left out of contact (e.g. pairs that are
+    /// already within d̂ at rest because they are neighbours along the surface). Indices are
+    /// `(vertex, face)` and `(edge a, edge b)` into [`ContactMesh::faces`] and
+    /// [`ContactMesh::edges`]; edge pairs are stored with `a < b`.
+    pub fn with_exclusions(
+        mut self,
+        mut point_triangle: Vec<(u32, u32)>,
+        edge_edge: Vec<(u32, u32)>,
+    ) -> Self {
+        point_triangle.sort_unstable();
+        point_triangle.dedup();
+        let mut edge_edge: Vec<(u32, u32)> = edge_edge
+            .into_iter()
+            .map(|(a, b)| (a.min(b), a.max(b)))
+            .collect();
+        edge_edge.sort_unstable();
+        edge_edge.dedup();
+        self.excluded_point_triangle = point_triangle;
+        self.excluded_edge_edge = edge_edge;
+        self
+    }
+
+    /// Whether the point–triangle pair `(vertex, face)` was left out.
+    #[inline]
+    pub fn excludes_point_triangle(&self, vertex: u32, face: u32) -> bool {
+        !self.excluded_point_triangle.is_empty()
+            && self
+                .excluded_point_triangle
+                .binary_search(&(vertex, face))
+                .is_ok()
+    }
+
+    /// Whether the edge–edge pair `(a, b)`, `a < b`, was left out.
+    #[inline]
+    pub fn excludes_edge_edge(&self, a: u32, b: u32) -> bool {
+        !self.excluded_edge_edge.is_empty()
+            && self.excluded_edge_edge.binary_search(&(a, b)).is_ok()
+    }
+
+    /// Number of pairs left out (point–triangle, edge–edge).
+    pub fn exclusion_counts(&self) -> (usize, usize) {
+        (
+            self.excluded_point_triangle.len(),
+            self.excluded_edge_edge.len(),
+        )
     }
 
     /// Number of simulation vertices (positions have `3·vertex_count` values).
@@ -144,6 +197,27 @@ impl ContactMesh {
     /// The edge–edge mollifier threshold `ε_x = 10⁻³·‖ea‖²·‖eb‖²` at rest (cm⁴).
     pub fn mollifier_threshold(&self, ea: usize, eb: usize) -> f64 {
         1e-3 * self.rest_edge_length2[ea] * self.rest_edge_length2[eb]
+    }
+
+    /// Whether vertex `v`'s group may touch every group.
+    #[inline]
+    pub fn touches_all(&self, v: u32) -> bool {
+        let g = self.group[v as usize] as usize;
+        self.can_touch[g * self.groups..(g + 1) * self.groups]
+            .iter()
+            .all(|&t| t)
+    }
+
+    /// Whether every group either touches all groups or touches exactly the groups that do
+    /// (e.g. soft tissue touching everything, rigid pieces touching only soft tissue). Then a
+    /// pair can only be in contact if one of its primitives has all its vertices in
+    /// touch-all groups, which lets the broad phase query a much smaller tree for the rest.
+    pub fn groups_split_by_universal(&self) -> bool {
+        let g = self.groups;
+        let universal: Vec<bool> = (0..g)
+            .map(|a| (0..g).all(|b| self.can_touch[a * g + b]))
+            .collect();
+        (0..g).all(|a| universal[a] || (0..g).all(|b| self.can_touch[a * g + b] == universal[b]))
     }
 
     /// Whether vertices `a` and `b` may be in contact (by their groups).

@@ -23,6 +23,8 @@ pub mod candidates;
 pub mod ccd;
 pub mod collisions;
 pub mod distance;
+pub mod drive;
+pub mod face;
 mod math;
 pub mod mesh;
 pub mod potential;
@@ -31,7 +33,7 @@ mod test_scenes;
 
 pub use barrier::{barrier, barrier_first_derivative, barrier_second_derivative};
 pub use candidates::{Candidates, EdgeEdgeCandidate, PointTriangleCandidate};
-pub use ccd::{CcdOptions, CcdOutcome, StepReport, collision_free_step};
+pub use ccd::{CcdOptions, CcdOutcome, StepReport, collision_free_step, collision_free_step_over};
 pub use collisions::CollisionType;
 pub use collisions::{Collision, CollisionKind, Collisions};
 pub use distance::{EdgeEdgeDistanceType, PointEdgeDistanceType, PointTriangleDistanceType};

@@ -7,6 +7,9 @@
 //! model behind it (the per-shape actuation basis, or the trained networks) can change
 //! without them changing.
 
+pub mod basis;
+pub mod fit;
+
 use serde::{Deserialize, Serialize};
 
 use crate::rig::ExpressionCode;

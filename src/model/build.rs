@@ -260,10 +260,11 @@ pub fn build_face(
     });
     report.dropped_triangles = before - triangles.len();
     let (mut triangles, kept) = compact(&triangles, positions.len());
-    let (positions, inward, origin) = (
+    let (positions, inward, origin, pinned) = (
         gather(&positions, &kept),
         gather(&inward, &kept),
         gather(&origin, &kept),
+        gather(&pinned, &kept),
     );
     let mut thickness = tissue_thickness(rig, &rest, &positions, &inward, settings);
     limit_slope(&positions, &triangles, &mut thickness, MAX_THICKNESS_SLOPE);
@@ -381,16 +382,16 @@ pub fn build_face(
         })
         .collect();
     // Tissue between skull and jaw must stay free to stretch: where the two bones' regions
-    // come within `BONE_GAP_RINGS` edges of each other, neither holds the tissue.
+    // come within `BONE_GAP_RINGS` edges of each other, neither holds the tissue. This holds
+    // on the crop's pinned border too: a prism column pinned to the skull beside one pinned
+    // to the jaw is torn apart (its elements invert) as soon as the jaw opens.
     for _ in 0..BONE_GAP_RINGS {
         let mut next = bone.clone();
         for t in &triangles {
             let has = |b: Bone| t.iter().any(|&v| bone[v as usize] == Some(b));
             if has(Bone::Skull) && has(Bone::Jaw) {
                 for &v in t {
-                    if !pinned[v as usize] {
-                        next[v as usize] = None;
-                    }
+                    next[v as usize] = None;
                 }
             }
         }
@@ -446,7 +447,6 @@ pub fn build_face(
     Ok(model)
 }
 
-/// Drops unreferenced vertices.
 /// Rings of skin left free between the skull's and the jaw's attachment regions.
 const BONE_GAP_RINGS: usize = 2;
 
@@ -719,8 +719,7 @@ mod tests {
     use crate::sim::{Quality, SymTensor};
 
     fn neutral_coarse() -> &'static FaceModel {
-        static MODEL: std::sync::OnceLock<FaceModel> = std::sync::OnceLock::new();
-        MODEL.get_or_init(|| build_face(rig(), None, &Lod::Coarse.settings()).unwrap())
+        crate::model::test_support::coarse_face(None)
     }
 
     #[test]
@@ -828,5 +827,38 @@ mod tests {
             build_face(rig(), Some(99), &Lod::Coarse.settings()),
             Err(BuildError::NoSuchIdentity(99, 10))
         ));
+    }
+
+    #[test]
+    fn every_identity_imports_valid_and_stays_at_rest_under_identity_actuation() {
+        let faces: Vec<&FaceModel> = std::iter::once(None)
+            .chain((0..rig().identity_count()).map(Some))
+            .map(crate::model::test_support::coarse_face)
+            .collect();
+        assert_eq!(faces.len(), 11);
+        for model in faces {
+            let (q, r) = (&model.quality, &model.report);
+            assert_eq!(r.intersections_after_repair, 0, "{}", model.name);
+            assert_eq!(q.inverted, 0, "{}", model.name);
+            assert!(q.min_dihedral_deg > 2.0, "{}: {q:?}", model.name);
+            assert!(
+                (4_000..6_500).contains(&q.elements),
+                "{}: {q:?}",
+                model.name
+            );
+            let sim = model.simulator().unwrap();
+            let mut state = sim.rest_state();
+            let rest = vec![SymTensor::IDENTITY; sim.element_count()];
+            let stats = sim
+                .solve(
+                    &rest,
+                    &BonePose::default(),
+                    &mut state,
+                    &Quality::Final.settings(),
+                )
+                .unwrap();
+            assert_eq!(stats.iterations, 0, "{}", model.name);
+            assert_eq!(state.positions(), model.mesh.vertices, "{}", model.name);
+        }
     }
 }

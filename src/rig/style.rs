@@ -122,7 +122,11 @@ pub fn identity_style(identity: Option<usize>) -> StyleCode {
     match identity {
         None => StyleCode::NEUTRAL,
         Some(i) => {
-            let sign = if (i / TABLE.len()) % 2 == 0 { 1.0 } else { -1.0 };
+            let sign = if (i / TABLE.len()).is_multiple_of(2) {
+                1.0
+            } else {
+                -1.0
+            };
             StyleCode(TABLE[i % TABLE.len()].map(|v| sign * v))
         }
     }
@@ -143,18 +147,34 @@ mod tests {
 
     #[test]
     fn neutral_style_passes_weights_through() {
-        let c = code(&[("jawOpen", 0.7), ("mouthSmile_L", 0.4), ("mouthPucker", 1.0)]);
+        let c = code(&[
+            ("jawOpen", 0.7),
+            ("mouthSmile_L", 0.4),
+            ("mouthPucker", 1.0),
+        ]);
         let w = StyleCode::NEUTRAL.shape_weights(&c);
         assert_eq!(
             w,
-            vec![("jawOpen", 0.7), ("mouthSmile_L", 0.4), ("mouthPucker", 1.0)]
+            vec![
+                ("jawOpen", 0.7),
+                ("mouthSmile_L", 0.4),
+                ("mouthPucker", 1.0)
+            ]
         );
-        assert!(StyleCode::NEUTRAL.shape_weights(&ExpressionCode::NEUTRAL).is_empty());
+        assert!(
+            StyleCode::NEUTRAL
+                .shape_weights(&ExpressionCode::NEUTRAL)
+                .is_empty()
+        );
     }
 
     #[test]
     fn each_entry_does_what_the_table_says() {
-        let c = code(&[("jawOpen", 1.0), ("mouthSmile_L", 1.0), ("mouthSmile_R", 1.0)]);
+        let c = code(&[
+            ("jawOpen", 1.0),
+            ("mouthSmile_L", 1.0),
+            ("mouthSmile_R", 1.0),
+        ]);
         let get = |s: StyleCode, name: &str| {
             s.shape_weights(&c)
                 .iter()
@@ -175,7 +195,11 @@ mod tests {
 
     #[test]
     fn styles_beyond_range_keep_weights_non_negative_and_finite() {
-        let c = code(&[("jawOpen", 1.0), ("mouthSmile_L", 1.0), ("mouthFrown_R", 1.0)]);
+        let c = code(&[
+            ("jawOpen", 1.0),
+            ("mouthSmile_L", 1.0),
+            ("mouthFrown_R", 1.0),
+        ]);
         for v in [-3.0, -1.0, 1.0, 3.0] {
             for k in 0..StyleCode::LEN {
                 let mut s = StyleCode::NEUTRAL;
@@ -194,7 +218,11 @@ mod tests {
         for (i, a) in styles.iter().enumerate() {
             assert!(a.0.iter().all(|v| (-1.0..=1.0).contains(v)));
             for b in &styles[i + 1..] {
-                let gap = a.0.iter().zip(&b.0).map(|(x, y)| (x - y).abs()).fold(0.0, f64::max);
+                let gap =
+                    a.0.iter()
+                        .zip(&b.0)
+                        .map(|(x, y)| (x - y).abs())
+                        .fold(0.0, f64::max);
                 assert!(gap >= 0.8, "{a:?} vs {b:?}");
             }
         }

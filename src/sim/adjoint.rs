@@ -32,8 +32,73 @@ pub struct Sensitivities {
 const ADJOINT_TOLERANCE: f64 = 1e-10;
 const ADJOINT_MAX_ITERATIONS: usize = 1000;
 
+/// The barrier's part of the Hessian at a state: exact (unprojected) 12×12 blocks in contact
+/// space, `∇²(κB)`, applied as `Wᵀ·H·W` (implicit differentiation needs the true Hessian).
+struct BarrierHessian<'a> {
+    face: &'a crate::contact::face::FaceContact,
+    blocks: Vec<crate::contact::HessianBlock>,
+}
+
+impl BarrierHessian<'_> {
+    /// `H_y·(W·v)` in contact space.
+    fn contact_product(&self, v: &[f64]) -> Vec<f64> {
+        let m = 3 * self.face.vertex_count();
+        let mut u = vec![0.0; m];
+        self.face.displacement(v, &mut u);
+        let mut hu = vec![0.0; m];
+        crate::contact::add_hessian_product(&self.blocks, &u, &mut hu);
+        hu
+    }
+
+    /// `out += Wᵀ·H_y·W·v`.
+    fn add_product(&self, v: &[f64], out: &mut [f64]) {
+        let hu = self.contact_product(v);
+        self.face.add_pulled_back(&hu, out);
+    }
+}
+
 impl Simulator {
-    /// `H·v` at `state` for the given inputs (exact Hessian of the total energy).
+    /// The barrier Hessian at `state` if contact is on for it (the state carries the κ its
+    /// solve ended with).
+    fn barrier_hessian(
+        &self,
+        bones: &BonePose,
+        state: &SimState,
+    ) -> Result<Option<BarrierHessian<'_>>, SimError> {
+        let (Some(model), Some(kappa)) = (self.contact.as_ref(), state.contact_stiffness) else {
+            return Ok(None);
+        };
+        let face = &model.face;
+        let mut y = vec![0.0; 3 * face.vertex_count()];
+        face.positions(&state.x, bones, &mut y);
+        let collisions = face.collisions(&y)?;
+        let potential = crate::contact::BarrierPotential::new(face.dhat(), kappa)?;
+        let blocks = potential.hessian(&collisions, &y, crate::contact::Projection::None)?;
+        Ok(Some(BarrierHessian { face, blocks }))
+    }
+
+    /// `κ·B` and `κ·Wᵀ∇B` at `state` (zero without contact for it).
+    fn barrier_gradient(
+        &self,
+        bones: &BonePose,
+        state: &SimState,
+        g: &mut [f64],
+    ) -> Result<f64, SimError> {
+        let (Some(model), Some(kappa)) = (self.contact.as_ref(), state.contact_stiffness) else {
+            return Ok(0.0);
+        };
+        let face = &model.face;
+        let mut y = vec![0.0; 3 * face.vertex_count()];
+        face.positions(&state.x, bones, &mut y);
+        let collisions = face.collisions(&y)?;
+        let potential = crate::contact::BarrierPotential::new(face.dhat(), kappa)?;
+        let gy = potential.gradient(&collisions, &y)?;
+        face.add_pulled_back(&gy, g);
+        Ok(potential.value(&collisions, &y)?)
+    }
+
+    /// `H·v` at `state` for the given inputs (exact Hessian of the total energy, the
+    /// barrier's included when the state was solved with contact).
     pub fn hessian_vector_product(
         &self,
         actuations: &[SymTensor],
@@ -44,8 +109,12 @@ impl Simulator {
         self.check_state(state)?;
         let frame = self.frame(actuations, bones)?;
         let lin = self.linearize(&frame, state);
+        let barrier = self.barrier_hessian(bones, state)?;
         let mut out = vec![0.0; v.len()];
         self.hessian_product(&lin, v, &mut out);
+        if let Some(b) = &barrier {
+            b.add_product(v, &mut out);
+        }
         Ok(out)
     }
 
@@ -62,7 +131,8 @@ impl Simulator {
         let energy = self.local_sweep(&frame, &state.x, None, &mut steps);
         let mut g = vec![0.0; state.x.len()];
         self.gradient(&frame, &state.x, &steps, &mut g);
-        Ok((energy, g))
+        let barrier = self.barrier_gradient(bones, state, &mut g)?;
+        Ok((energy + barrier, g))
     }
 
     /// Gradients of a loss `ℓ(u)` with respect to every element's actuation and to the jaw
@@ -84,7 +154,9 @@ impl Simulator {
         }
         let frame = self.frame(actuations, bones)?;
         let lin = self.linearize(&frame, state);
-        let (lambda, iterations, residual) = self.adjoint_solve(&lin, loss_gradient)?;
+        let barrier = self.barrier_hessian(bones, state)?;
+        let (lambda, iterations, residual) =
+            self.adjoint_solve(&lin, barrier.as_ref(), loss_gradient)?;
 
         let actuation = (0..self.element_count())
             .into_par_iter()
@@ -112,6 +184,26 @@ impl Simulator {
                 jaw[k] += contribution[k];
             }
         }
+        // The teeth on the jaw are barrier obstacles: ∇ₓ(κB) = Wᵀ∇_y(κB)(W·x, T(p)), so
+        // ∂∇ₓ(κB)/∂θ = Wᵀ·H_{y,r}·∂T(p_r)/∂θ and −λᵀ of it is −Σ_r (H·W·λ)_rᵀ·∂T(p_r)/∂θ.
+        if let Some(b) = &barrier {
+            let h_lambda = b.contact_product(&lambda);
+            for (i, binding) in b.face.bindings().iter().enumerate() {
+                if let crate::contact::face::ContactBinding::Rigid {
+                    bone: Bone::Jaw,
+                    rest,
+                } = binding
+                {
+                    let jac = bones.jaw_target_jacobian(&self.config.jaw_pivot, rest);
+                    let hl =
+                        Vector3::new(h_lambda[3 * i], h_lambda[3 * i + 1], h_lambda[3 * i + 2]);
+                    let contribution = jac.transpose() * hl;
+                    for k in 0..6 {
+                        jaw[k] -= contribution[k];
+                    }
+                }
+            }
+        }
         Ok(Sensitivities {
             actuation,
             jaw,
@@ -124,6 +216,7 @@ impl Simulator {
     fn adjoint_solve(
         &self,
         lin: &[super::shape_targeting::Linearized],
+        barrier: Option<&BarrierHessian<'_>>,
         b: &[f64],
     ) -> Result<(Vec<f64>, usize, f64), SimError> {
         let dim = b.len();
@@ -142,6 +235,9 @@ impl Simulator {
         let mut residual = 1.0;
         for iteration in 1..=ADJOINT_MAX_ITERATIONS {
             self.hessian_product(lin, &p, &mut hp);
+            if let Some(bh) = barrier {
+                bh.add_product(&p, &mut hp);
+            }
             let curvature = dot(&p, &hp);
             if !(curvature > 0.0) {
                 return Err(SimError::IndefiniteHessian(curvature / dot(&p, &p)));

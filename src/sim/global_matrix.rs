@@ -32,6 +32,8 @@ pub struct GlobalMatrix {
     l_values: Vec<f64>,
     /// The diagonal of `L`: per-vertex stiffness scale.
     diagonal: Vec<f64>,
+    /// `L`'s lower triangle (duplicates summed), for contact steps that refactor `L + K`.
+    lower: Vec<Triplet<usize, usize, f64>>,
 }
 
 /// Scratch for one solve with 3 right-hand sides: allocate once, reuse every iteration.
@@ -84,6 +86,11 @@ impl GlobalMatrix {
             },
         )
         .map_err(|e| FactorError::Build(format!("{e:?}")))?;
+        let lower: Vec<Triplet<usize, usize, f64>> = matrix
+            .as_ref()
+            .triplet_iter()
+            .map(|t| Triplet::new(t.row, t.col, *t.val))
+            .collect();
         let mut l_values = vec![0.0; symbolic.len_val()];
         let par = Par::Seq;
         let mut stack =
@@ -104,6 +111,7 @@ impl GlobalMatrix {
             symbolic,
             l_values,
             diagonal,
+            lower,
         })
     }
 
@@ -114,6 +122,11 @@ impl GlobalMatrix {
     /// Nonzeros in the Cholesky factor (what a solve streams through).
     pub fn factor_nonzeros(&self) -> usize {
         self.l_values.len()
+    }
+
+    /// `L`'s lower-triangle entries (row ≥ column).
+    pub fn lower_entries(&self) -> &[Triplet<usize, usize, f64>] {
+        &self.lower
     }
 
     pub fn diagonal(&self) -> &[f64] {

@@ -5,6 +5,7 @@
 
 pub mod adjoint;
 pub mod attachment;
+pub mod contact;
 pub mod deformation;
 pub mod global_matrix;
 pub mod polar;
@@ -16,6 +17,7 @@ mod vector;
 
 pub use adjoint::Sensitivities;
 pub use attachment::{Attachments, Bone, BonePose, RigidMotion};
+pub use contact::{ContactStats, ContactStep};
 pub use simulator::{SimConfig, SimError, SimState, Simulator};
 pub use solver::{Quality, SolveSettings, SolveStats, Termination};
 pub use tensor::SymTensor;

@@ -50,6 +50,16 @@ pub enum SimError {
     IndefiniteHessian(f64),
     #[error("loss gradient has {got} entries, expected {expected} (3 per vertex)")]
     LossGradientSize { expected: usize, got: usize },
+    #[error("contact: {0}")]
+    Contact(#[from] crate::contact::ContactError),
+    #[error(
+        "the contact surfaces intersect after the solve ({count} edge–triangle crossings): \
+         a bug, since every step is collision-checked"
+    )]
+    Intersecting {
+        count: usize,
+        stats: Box<super::solver::SolveStats>,
+    },
 }
 
 /// Material and attachment settings.
@@ -88,6 +98,8 @@ pub struct Simulator {
     incidence_offsets: Vec<u32>,
     incidence: Vec<(u32, u8)>,
     pub(crate) config: SimConfig,
+    /// Contact surfaces and their precomputed data, if set up.
+    pub(crate) contact: Option<super::contact::ContactModel>,
 }
 
 /// The simulated configuration, reused as the warm start of the next solve.
@@ -101,6 +113,12 @@ pub struct SimState {
     pub(crate) history: Option<super::solver::History>,
     /// Trial buffer for the line search, kept so solves do not reallocate it.
     pub(crate) spare: Vec<LocalStep>,
+    /// The bone pose `x` was solved under (the rest pose for a fresh state): contact moves
+    /// the teeth from here to the next pose without crossing the lips.
+    pub(crate) bones: BonePose,
+    /// The barrier stiffness κ the last contact solve ended with (`None`: solved without
+    /// contact); part of the energy that sensitivities differentiate.
+    pub(crate) contact_stiffness: Option<f64>,
 }
 
 impl SimState {
@@ -221,7 +239,37 @@ impl Simulator {
             incidence_offsets: counts,
             incidence,
             config,
+            contact: None,
         })
+    }
+
+    /// Sets up contact on `face`'s surfaces (precomputes the block of `L⁻¹` over the
+    /// simulation vertices they touch). Solves use it while [`SolveSettings::contact`] is on.
+    ///
+    /// [`SolveSettings::contact`]: super::SolveSettings::contact
+    pub fn set_contact(&mut self, face: crate::contact::face::FaceContact) -> Result<(), SimError> {
+        if face.sim_vertex_count() != self.vertex_count() {
+            return Err(SimError::Setup(format!(
+                "contact surfaces built for {} simulation vertices, the mesh has {}",
+                face.sim_vertex_count(),
+                self.vertex_count()
+            )));
+        }
+        self.contact = Some(super::contact::ContactModel::new(face, &self.global));
+        Ok(())
+    }
+
+    /// Chooses how contact-aware steps bring in the barrier's curvature (the default is the
+    /// faster low-rank update; `facesim bench contact` compares).
+    pub fn set_contact_step(&mut self, step: super::contact::ContactStep) {
+        if let Some(c) = self.contact.as_mut() {
+            c.step = step;
+        }
+    }
+
+    /// The contact surfaces, if set up.
+    pub fn contact(&self) -> Option<&crate::contact::face::FaceContact> {
+        self.contact.as_ref().map(|c| &c.face)
     }
 
     pub fn mesh(&self) -> &TetMesh {
@@ -267,10 +315,13 @@ impl Simulator {
             steps: vec![step; self.element_count()],
             history: None,
             spare: Vec::new(),
+            bones: BonePose::default(),
+            contact_stiffness: None,
         }
     }
 
-    /// A state at the given positions (for warm starts from elsewhere, and for tests).
+    /// A state at the given positions (for warm starts from elsewhere, and for tests), taken
+    /// to be solved under the rest bone pose.
     pub fn state_at(&self, positions: &[Point3<f64>]) -> Result<SimState, SimError> {
         if positions.len() != self.vertex_count() {
             return Err(SimError::StateMismatch {

@@ -11,7 +11,8 @@ use std::time::{Duration, Instant};
 
 use serde::{Deserialize, Serialize};
 
-use super::attachment::BonePose;
+use super::attachment::{BonePose, RigidMotion};
+use super::contact::{ContactModel, ContactSolve, ContactStats};
 use super::shape_targeting::LocalStep;
 use super::simulator::{SimError, SimState, Simulator};
 use super::tensor::SymTensor;
@@ -64,16 +65,19 @@ impl Quality {
                 tolerance: 1e-3,
                 max_iterations: 30,
                 history: 5,
+                contact: true,
             },
             Quality::Preview => SolveSettings {
                 tolerance: 1e-4,
                 max_iterations: 100,
                 history: 8,
+                contact: true,
             },
             Quality::Final => SolveSettings {
                 tolerance: 1e-6,
                 max_iterations: 1000,
                 history: 8,
+                contact: true,
             },
         }
     }
@@ -88,6 +92,14 @@ pub struct SolveSettings {
     pub max_iterations: usize,
     /// L-BFGS history length `m` (0 = plain Projective Dynamics).
     pub history: usize,
+    /// Contact on or off (a no-op for a simulator without contact surfaces, see
+    /// [`Simulator::set_contact`]).
+    #[serde(default = "contact_on")]
+    pub contact: bool,
+}
+
+fn contact_on() -> bool {
+    true
 }
 
 impl Default for SolveSettings {
@@ -131,6 +143,9 @@ pub struct SolveStats {
     /// Time in the iteration loop (no setup or final checks): `iteration_time / iterations`
     /// is the cost of one iteration.
     pub iteration_time: Duration,
+    /// What contact did (`None` when contact was off or not set up).
+    #[serde(default)]
+    pub contact: Option<ContactStats>,
 }
 
 impl SolveStats {
@@ -206,14 +221,9 @@ impl History {
         self.len = (self.len + 1).min(m);
     }
 
-    /// `d = −H·g` by the two-loop recursion with `H₀ = L⁻¹`.
-    fn direction(
-        &mut self,
-        sim: &Simulator,
-        g: &[f64],
-        d: &mut [f64],
-        scratch: &mut super::global_matrix::SolveScratch,
-    ) -> Duration {
+    /// `d = −H·g` by the two-loop recursion with `H₀` applied by `h0` (`L⁻¹`, or
+    /// `(L + K)⁻¹` with contact).
+    fn direction(&mut self, h0: &mut dyn FnMut(&mut [f64]), g: &[f64], d: &mut [f64]) -> Duration {
         let m = self.capacity();
         d.copy_from_slice(g);
         let newest_first: Vec<usize> = (0..self.len).map(|k| (self.next + m - 1 - k) % m).collect();
@@ -222,7 +232,7 @@ impl History {
             axpy(-self.alpha[i], &self.y[i], d);
         }
         let solve_start = Instant::now();
-        sim.global.solve_in_place(d, scratch);
+        h0(d);
         let solve_time = solve_start.elapsed();
         for &i in newest_first.iter().rev() {
             let beta = self.rho[i] * dot(&self.y[i], d);
@@ -235,10 +245,30 @@ impl History {
     }
 }
 
+/// Most bone-pose stages a contact solve may split a pose change into.
+const MAX_POSE_STAGES: usize = 64;
+
+/// The pose a fraction `s` of the way from `a` to `b` (parameters interpolated linearly).
+fn lerp_pose(a: &BonePose, b: &BonePose, s: f64) -> BonePose {
+    let mix = |p: &RigidMotion, q: &RigidMotion| {
+        let (p, q) = (p.params(), q.params());
+        RigidMotion::from_params(std::array::from_fn(|k| p[k] + s * (q[k] - p[k])))
+    };
+    BonePose {
+        skull: mix(&a.skull, &b.skull),
+        jaw: mix(&a.jaw, &b.jaw),
+    }
+}
+
 impl Simulator {
     /// Solves for the equilibrium under `actuations` (one per element) and `bones`, starting
     /// from `state` (the previous frame, or [`Simulator::rest_state`]) and leaving the result
     /// in it.
+    ///
+    /// With contact set up ([`Simulator::set_contact`]) and `settings.contact` on, the barrier
+    /// is part of the energy, every line-search step is collision-checked, rigid contact
+    /// surfaces (teeth) are moved to the new pose in collision-free stages, and the result is
+    /// checked for crossings ([`SimError::Intersecting`]).
     ///
     /// Errors are loud: bad inputs are rejected before anything changes; a result with
     /// inverted elements is returned as [`SimError::Inverted`] (the state then holds it, for
@@ -259,21 +289,180 @@ impl Simulator {
             )));
         }
         let frame = self.frame(actuations, bones)?;
+        let model = if settings.contact {
+            self.contact.as_ref()
+        } else {
+            None
+        };
+        let Some(model) = model else {
+            let mut stats = self.solve_stage(&frame, None, bones, state, settings)?;
+            state.bones = *bones;
+            state.contact_stiffness = None;
+            stats.wall_time = start.elapsed();
+            return Ok(stats);
+        };
+
+        // Move the rigid contact surfaces to the new pose in stages that CCD certifies free
+        // of crossings (with the tissue where it is), solving after each.
+        let from = state.bones;
+        let mut reached = 0.0;
+        let mut total: Option<SolveStats> = None;
+        let mut stages = 0;
+        loop {
+            let mut s = 1.0;
+            while !self.obstacles_move_freely(
+                model,
+                &state.x,
+                &lerp_pose(&from, bones, reached),
+                &lerp_pose(&from, bones, s),
+            )? {
+                s = reached + 0.5 * (s - reached);
+                if s - reached < 1e-9 {
+                    return Err(SimError::Setup(
+                        "the teeth cannot move toward the new pose without crossing the lips \
+                         (the tissue is pinned against them)"
+                            .into(),
+                    ));
+                }
+            }
+            stages += 1;
+            if stages > MAX_POSE_STAGES {
+                return Err(SimError::Setup(format!(
+                    "reaching the bone pose needed more than {MAX_POSE_STAGES} collision-free stages"
+                )));
+            }
+            let pose = lerp_pose(&from, bones, s);
+            let stage_frame;
+            let f = if s == 1.0 {
+                &frame
+            } else {
+                stage_frame = self.frame(actuations, &pose)?;
+                &stage_frame
+            };
+            let result = self.solve_stage(f, Some(model), &pose, state, settings);
+            state.bones = pose;
+            let stats = match result {
+                Ok(stats) => stats,
+                Err(SimError::Inverted {
+                    count,
+                    first,
+                    mut stats,
+                }) if s == 1.0 => {
+                    merge_stages(&mut stats, total, stages);
+                    return Err(SimError::Inverted {
+                        count,
+                        first,
+                        stats,
+                    });
+                }
+                Err(e) => return Err(e),
+            };
+            let mut stats = stats;
+            merge_stages(&mut stats, total.take(), stages);
+            total = Some(stats);
+            if s == 1.0 {
+                break;
+            }
+            reached = s;
+        }
+        let mut stats = total.expect("at least one stage ran");
+        state.contact_stiffness = stats.contact.as_ref().map(|c| c.stiffness);
+        // The intersection-free guarantee, checked on what the artist sees.
+        let mut y = vec![0.0; 3 * model.face.vertex_count()];
+        model.face.positions(&state.x, bones, &mut y);
+        let crossings = model.face.new_crossings(&y);
+        stats.wall_time = start.elapsed();
+        if !crossings.is_empty() {
+            if let Some(c) = stats.contact.as_mut() {
+                c.new_crossings = crossings.len();
+            }
+            return Err(SimError::Intersecting {
+                count: crossings.len(),
+                stats: Box::new(stats),
+            });
+        }
+        Ok(stats)
+    }
+
+    /// Whether moving the rigid contact vertices from pose `a` to pose `b` (straight lines,
+    /// tissue fixed at `x`) crosses no surface.
+    fn obstacles_move_freely(
+        &self,
+        model: &ContactModel,
+        x: &[f64],
+        a: &BonePose,
+        b: &BonePose,
+    ) -> Result<bool, SimError> {
+        if a == b {
+            return Ok(true);
+        }
+        let m = 3 * model.face.vertex_count();
+        let (mut ya, mut yb) = (vec![0.0; m], vec![0.0; m]);
+        model.face.positions(x, a, &mut ya);
+        model.face.positions(x, b, &mut yb);
+        let dy: Vec<f64> = yb.iter().zip(&ya).map(|(p, q)| p - q).collect();
+        // The teeth may not take more than half of any gap within d̂ (so the barrier the
+        // stage starts with stays moderate), nor cross anything.
+        let collisions = model.face.collisions(&ya)?;
+        let gap = collisions.min_distance_squared().sqrt();
+        let report = crate::contact::collision_free_step(
+            model.face.mesh(),
+            &ya,
+            &dy,
+            &crate::contact::CcdOptions {
+                min_distance: 0.5 * gap,
+                max_iterations: 1000,
+                ..crate::contact::CcdOptions::default()
+            },
+        )?;
+        Ok(report.step >= 1.0)
+    }
+
+    /// One solve at fixed bones (with the rigid contact surfaces already there).
+    fn solve_stage(
+        &self,
+        frame: &super::simulator::Frame,
+        model: Option<&ContactModel>,
+        bones: &BonePose,
+        state: &mut SimState,
+        settings: &SolveSettings,
+    ) -> Result<SolveStats, SimError> {
+        let start = Instant::now();
         let dim = state.x.len();
-        let scale = self.force_scale(&frame);
+        let scale = self.force_scale(frame);
 
         // Per-element buffers live in the state: the current one is updated in place (its
         // rotations are the warm start), the spare one takes line-search trials.
         let mut steps = std::mem::take(&mut state.steps);
         let mut trial_steps = std::mem::take(&mut state.spare);
         trial_steps.resize(steps.len(), LocalStep::default());
-        let mut energy = self.local_sweep(&frame, &state.x, None, &mut steps);
-        let mut g = vec![0.0; dim];
-        self.gradient(&frame, &state.x, &steps, &mut g);
-        let mut residual = norm(&g) / scale;
-        if !energy.is_finite() || !residual.is_finite() {
+        let restore = |state: &mut SimState, steps, trial_steps| {
             state.steps = steps;
             state.spare = trial_steps;
+        };
+        let mut energy = self.local_sweep(frame, &state.x, None, &mut steps);
+        let mut g = vec![0.0; dim];
+        self.gradient(frame, &state.x, &steps, &mut g);
+        let mut contact = match model {
+            Some(m) => match ContactSolve::start(m, &self.global, &state.x, bones, &g) {
+                Ok(c) => Some(c),
+                Err(e) => {
+                    restore(state, steps, trial_steps);
+                    return Err(e.into());
+                }
+            },
+            None => None,
+        };
+        if let Some(c) = contact.as_mut() {
+            energy += c.energy();
+            if let Err(e) = c.add_gradient(&mut g) {
+                restore(state, steps, trial_steps);
+                return Err(e.into());
+            }
+        }
+        let mut residual = norm(&g) / scale;
+        if !energy.is_finite() || !residual.is_finite() {
+            restore(state, steps, trial_steps);
             return Err(SimError::NonFiniteState(0));
         }
         let initial_residual = residual;
@@ -294,70 +483,101 @@ impl Simulator {
         let mut termination = Termination::IterationCap;
 
         let loop_start = Instant::now();
-        while residual > settings.tolerance {
-            if iterations == settings.max_iterations {
-                break;
-            }
-            global_time += history.direction(self, &g, &mut d, &mut scratch);
-            let mut slope = dot(&g, &d);
-            if !(slope < 0.0) {
-                // Not a descent direction (lost curvature information): restart as plain PD.
-                history.clear();
-                global_time += history.direction(self, &g, &mut d, &mut scratch);
-                slope = dot(&g, &d);
-            }
-            let mut alpha = 1.0;
-            let mut accepted = None;
-            for _ in 0..MAX_BACKTRACKS {
-                for i in 0..dim {
-                    x_trial[i] = state.x[i] + alpha * d[i];
+        let outcome: Result<(), SimError> = (|| {
+            while residual > settings.tolerance {
+                if iterations == settings.max_iterations {
+                    break;
                 }
-                let sweep_start = Instant::now();
-                let e = self.local_sweep(&frame, &x_trial, Some(&steps), &mut trial_steps);
-                local_time += sweep_start.elapsed();
-                evaluations += 1;
-                if e.is_finite() {
-                    if e <= energy + ARMIJO * alpha * slope {
-                        accepted = Some(e);
-                        break;
-                    }
-                    if (alpha * slope).abs() <= ROUND_OFF * energy.abs()
-                        && e <= energy * (1.0 + ROUND_OFF)
-                    {
-                        // The energy cannot resolve this step; take it if it reduces the gradient.
-                        self.gradient(&frame, &x_trial, &trial_steps, &mut g_trial);
-                        if norm(&g_trial) < norm(&g) {
-                            accepted = Some(e);
-                            break;
+                let mut h0 = |v: &mut [f64]| match contact.as_mut() {
+                    Some(c) => c.apply_inverse(v, &mut scratch),
+                    None => self.global.solve_in_place(v, &mut scratch),
+                };
+                global_time += history.direction(&mut h0, &g, &mut d);
+                let mut slope = dot(&g, &d);
+                if !(slope < 0.0) {
+                    // Not a descent direction (lost curvature information): restart as plain PD.
+                    history.clear();
+                    global_time += history.direction(&mut h0, &g, &mut d);
+                    slope = dot(&g, &d);
+                }
+                let mut alpha = match contact.as_mut() {
+                    Some(c) => c.max_step(&d)?,
+                    None => 1.0,
+                };
+                let mut accepted = None;
+                if alpha > 0.0 {
+                    for _ in 0..MAX_BACKTRACKS {
+                        for i in 0..dim {
+                            x_trial[i] = state.x[i] + alpha * d[i];
                         }
+                        let sweep_start = Instant::now();
+                        let mut e =
+                            self.local_sweep(frame, &x_trial, Some(&steps), &mut trial_steps);
+                        local_time += sweep_start.elapsed();
+                        if let Some(c) = contact.as_mut() {
+                            e += c.trial_energy(alpha)?;
+                        }
+                        evaluations += 1;
+                        if e.is_finite() {
+                            if e <= energy + ARMIJO * alpha * slope {
+                                accepted = Some(e);
+                                break;
+                            }
+                            if (alpha * slope).abs() <= ROUND_OFF * energy.abs()
+                                && e <= energy * (1.0 + ROUND_OFF)
+                            {
+                                // The energy cannot resolve this step; take it if it reduces
+                                // the gradient.
+                                self.gradient(frame, &x_trial, &trial_steps, &mut g_trial);
+                                if let Some(c) = contact.as_mut() {
+                                    c.add_trial_gradient(&mut g_trial)?;
+                                }
+                                if norm(&g_trial) < norm(&g) {
+                                    accepted = Some(e);
+                                    break;
+                                }
+                            }
+                        }
+                        alpha *= 0.5;
                     }
                 }
-                alpha *= 0.5;
+                let Some(e) = accepted else {
+                    termination = Termination::Stalled;
+                    break;
+                };
+                self.gradient(frame, &x_trial, &trial_steps, &mut g_trial);
+                let mut e = e;
+                if let Some(c) = contact.as_mut() {
+                    // Move the contact state along; κ may change, so the energy and the
+                    // gradient are taken with the new κ.
+                    let e_el = e - c.trial_energy_value();
+                    e = e_el + c.accept(dim / 3)?;
+                    c.add_gradient(&mut g_trial)?;
+                }
+                history.push(&x_trial, &state.x, &g_trial, &g);
+                std::mem::swap(&mut state.x, &mut x_trial);
+                std::mem::swap(&mut g, &mut g_trial);
+                std::mem::swap(&mut steps, &mut trial_steps);
+                energy = e;
+                residual = norm(&g) / scale;
+                iterations += 1;
+                energy_history.push(energy);
             }
-            let Some(e) = accepted else {
-                termination = Termination::Stalled;
-                break;
-            };
-            self.gradient(&frame, &x_trial, &trial_steps, &mut g_trial);
-            history.push(&x_trial, &state.x, &g_trial, &g);
-            std::mem::swap(&mut state.x, &mut x_trial);
-            std::mem::swap(&mut g, &mut g_trial);
-            std::mem::swap(&mut steps, &mut trial_steps);
-            energy = e;
-            residual = norm(&g) / scale;
-            iterations += 1;
-            energy_history.push(energy);
-        }
+            Ok(())
+        })();
         let iteration_time = loop_start.elapsed();
+        state.history = Some(history);
+        if let Err(e) = outcome {
+            restore(state, steps, trial_steps);
+            return Err(e);
+        }
         if residual <= settings.tolerance {
             termination = Termination::Converged;
         }
         let inverted: Vec<usize> = (0..steps.len())
             .filter(|&e| !(steps[e].volume_ratio > 0.0))
             .collect();
-        state.steps = steps;
-        state.spare = trial_steps;
-        state.history = Some(history);
+        restore(state, steps, trial_steps);
         let stats = SolveStats {
             iterations,
             evaluations,
@@ -370,6 +590,7 @@ impl Simulator {
             local_time,
             global_time,
             iteration_time,
+            contact: contact.map(ContactSolve::finish),
         };
         if let Some(&first) = inverted.first() {
             return Err(SimError::Inverted {
@@ -379,5 +600,32 @@ impl Simulator {
             });
         }
         Ok(stats)
+    }
+}
+
+/// Folds the statistics of earlier pose stages into the last one's.
+fn merge_stages(last: &mut SolveStats, earlier: Option<SolveStats>, stages: usize) {
+    if let Some(c) = last.contact.as_mut() {
+        c.pose_stages = stages;
+    }
+    let Some(e) = earlier else {
+        return;
+    };
+    last.iterations += e.iterations;
+    last.evaluations += e.evaluations;
+    last.initial_residual = e.initial_residual;
+    last.local_time += e.local_time;
+    last.global_time += e.global_time;
+    last.iteration_time += e.iteration_time;
+    let mut history = e.energy_history;
+    history.extend_from_slice(&last.energy_history);
+    last.energy_history = history;
+    if let (Some(c), Some(ec)) = (last.contact.as_mut(), e.contact) {
+        c.ccd_limited_steps += ec.ccd_limited_steps;
+        c.candidate_builds += ec.candidate_builds;
+        c.broad_phase_time += ec.broad_phase_time;
+        c.barrier_time += ec.barrier_time;
+        c.ccd_time += ec.ccd_time;
+        c.linear_time += ec.linear_time;
     }
 }

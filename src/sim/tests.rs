@@ -25,6 +25,7 @@ fn tight() -> SolveSettings {
         tolerance: 1e-11,
         max_iterations: 5000,
         history: 8,
+        contact: true,
     }
 }
 
@@ -143,6 +144,7 @@ fn energy_never_increases_along_iterations() {
             tolerance: 1e-9,
             max_iterations: 3000,
             history,
+            contact: true,
         };
         let stats = sim
             .solve(
@@ -185,6 +187,7 @@ fn lbfgs_needs_fewer_iterations_than_plain_projective_dynamics() {
                 tolerance: 1e-8,
                 max_iterations: 5000,
                 history,
+                contact: true,
             },
         )
         .unwrap()
@@ -214,6 +217,7 @@ fn deformed_state(sim: &Simulator, scene: &SlabScene, rng: &mut ChaCha8Rng) -> S
         tolerance: 0.0,
         max_iterations: 0,
         history: 0,
+        contact: true,
     };
     sim.solve(&act, &BonePose::default(), &mut state, &settings)
         .unwrap();

@@ -87,8 +87,49 @@ impl Candidates {
             .par_iter()
             .map(|v| box_of(std::slice::from_ref(v)))
             .collect();
+        // With groups split into touch-all and touch-only-those (soft tissue and rigid
+        // pieces), a primitive with a vertex outside the touch-all groups can only meet
+        // primitives entirely inside them: it queries the smaller tree of those ("open").
+        let split = mesh.groups_split_by_universal();
+        let open_faces: Vec<u32> = (0..mesh.faces().len() as u32)
+            .filter(|&f| {
+                !split
+                    || mesh.faces()[f as usize]
+                        .iter()
+                        .all(|&v| mesh.touches_all(v))
+            })
+            .collect();
+        let open_edges: Vec<u32> = (0..mesh.edges().len() as u32)
+            .filter(|&e| {
+                !split
+                    || mesh.edges()[e as usize]
+                        .iter()
+                        .all(|&v| mesh.touches_all(v))
+            })
+            .collect();
+        let subset_boxes = |ids: &[u32], boxes: &[Box3]| {
+            ids.iter().map(|&i| boxes[i as usize]).collect::<Vec<_>>()
+        };
         let face_tree = BoxTree::new(&face_boxes);
+        let open_face_tree = BoxTree::new(&subset_boxes(&open_faces, &face_boxes));
         let edge_tree = BoxTree::new(&edge_boxes);
+        let open_edge_tree = BoxTree::new(&subset_boxes(&open_edges, &edge_boxes));
+        // Queries an open tree and maps its (sorted) local indices back (order is kept).
+        let query = |all: &BoxTree,
+                     open: &BoxTree,
+                     ids: &[u32],
+                     universal: bool,
+                     b: &Box3,
+                     out: &mut Vec<u32>| {
+            if universal {
+                all.overlapping(b, out);
+            } else {
+                open.overlapping(b, out);
+                for i in out.iter_mut() {
+                    *i = ids[*i as usize];
+                }
+            }
+        };
 
         let faces = mesh.faces();
         let point_triangle: Vec<PointTriangleCandidate> = mesh
@@ -100,10 +141,20 @@ impl Candidates {
                 let mut out = Vec::new();
                 for (&v, b) in verts.iter().zip(boxes) {
                     found.clear();
-                    face_tree.overlapping(b, &mut found);
+                    query(
+                        &face_tree,
+                        &open_face_tree,
+                        &open_faces,
+                        !split || mesh.touches_all(v),
+                        b,
+                        &mut found,
+                    );
                     for &f in &found {
                         let tri = faces[f as usize];
-                        if !tri.contains(&v) && tri.iter().all(|&t| mesh.can_touch(v, t)) {
+                        if !tri.contains(&v)
+                            && tri.iter().all(|&t| mesh.can_touch(v, t))
+                            && !mesh.excludes_point_triangle(v, f)
+                        {
                             out.push(PointTriangleCandidate { vertex: v, face: f });
                         }
                     }
@@ -123,14 +174,22 @@ impl Candidates {
                     let ea = (chunk * CHUNK + k) as u32;
                     let [a0, a1] = edges[ea as usize];
                     found.clear();
-                    edge_tree.overlapping(b, &mut found);
+                    let universal = !split || (mesh.touches_all(a0) && mesh.touches_all(a1));
+                    query(
+                        &edge_tree,
+                        &open_edge_tree,
+                        &open_edges,
+                        universal,
+                        b,
+                        &mut found,
+                    );
                     for &eb in found.iter().filter(|&&eb| eb > ea) {
                         let [b0, b1] = edges[eb as usize];
                         let shares = a0 == b0 || a0 == b1 || a1 == b0 || a1 == b1;
                         let touch = [a0, a1]
                             .iter()
                             .all(|&p| mesh.can_touch(p, b0) && mesh.can_touch(p, b1));
-                        if !shares && touch {
+                        if !shares && touch && !mesh.excludes_edge_edge(ea, eb) {
                             out.push(EdgeEdgeCandidate {
                                 edge_a: ea,
                                 edge_b: eb,

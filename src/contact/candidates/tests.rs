@@ -168,3 +168,56 @@ fn bad_inputs_are_typed_errors() {
         Err(ContactError::InvalidMesh(_))
     ));
 }
+
+/// Soft tissue that touches everything and rigid pieces that touch only soft tissue (the
+/// face's groups) take the broad phase's two-tree path: it must still find every allowed
+/// close pair, and honour per-pair exclusions.
+#[test]
+fn split_groups_and_exclusions_miss_no_allowed_pair() {
+    let (x, faces) = two_sheets(9, 0.03, [0.013, -0.021], 0.3, 0.01, 7);
+    let n = x.len() / 3;
+    // Vertex groups in stripes: soft (0), rigid on one bone (1), rigid on another (2).
+    let group: Vec<u16> = (0..n).map(|v| (v % 3) as u16).collect();
+    let matrix = [
+        vec![true, true, true],
+        vec![true, false, false],
+        vec![true, false, false],
+    ];
+    let mesh = ContactMesh::with_groups(&x, faces.clone(), group, &matrix).unwrap();
+    assert!(mesh.groups_split_by_universal());
+    let dhat = 0.05;
+    let (pt, ee) = brute_force(&mesh, &x, dhat);
+    let allowed_pt: Vec<_> = pt
+        .into_iter()
+        .filter(|p| {
+            let f = mesh.faces()[p.face as usize];
+            f.iter().all(|&t| mesh.can_touch(p.vertex, t))
+        })
+        .collect();
+    let allowed_ee: Vec<_> = ee
+        .into_iter()
+        .filter(|e| {
+            let [a0, a1] = mesh.edges()[e.edge_a as usize];
+            let [b0, b1] = mesh.edges()[e.edge_b as usize];
+            [a0, a1]
+                .iter()
+                .all(|&a| mesh.can_touch(a, b0) && mesh.can_touch(a, b1))
+        })
+        .collect();
+    assert!(!allowed_pt.is_empty() && !allowed_ee.is_empty());
+    let c = Candidates::build(&mesh, &x, dhat).unwrap();
+    for p in &allowed_pt {
+        assert!(c.point_triangle.binary_search(p).is_ok(), "missed {p:?}");
+    }
+    for e in &allowed_ee {
+        assert!(c.edge_edge.binary_search(e).is_ok(), "missed {e:?}");
+    }
+    // Excluding the first allowed pair of each kind removes exactly those.
+    let (p0, e0) = (allowed_pt[0], allowed_ee[0]);
+    let excluded = mesh.with_exclusions(vec![(p0.vertex, p0.face)], vec![(e0.edge_b, e0.edge_a)]);
+    let c2 = Candidates::build(&excluded, &x, dhat).unwrap();
+    assert_eq!(c2.point_triangle.len() + 1, c.point_triangle.len());
+    assert_eq!(c2.edge_edge.len() + 1, c.edge_edge.len());
+    assert!(c2.point_triangle.binary_search(&p0).is_err());
+    assert!(c2.edge_edge.binary_search(&e0).is_err());
+}

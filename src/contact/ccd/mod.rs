@@ -105,6 +105,23 @@ pub fn collision_free_step(
 ) -> Result<StepReport, ContactError> {
     opts.validate()?;
     let candidates = Candidates::build_swept(mesh, x, dx, opts.min_distance)?;
+    collision_free_step_over(mesh, &candidates, x, dx, opts)
+}
+
+/// [`collision_free_step`] over candidates the caller already has: they must cover every pair
+/// whose swept boxes (grown by `ξ/2`) overlap, e.g. [`Candidates::build_swept`] with an
+/// inflation ≥ ξ (the solver builds them once per step with `d̂` and uses them for the
+/// barrier along the line search too).
+pub fn collision_free_step_over(
+    mesh: &ContactMesh,
+    candidates: &Candidates,
+    x: &[f64],
+    dx: &[f64],
+    opts: &CcdOptions,
+) -> Result<StepReport, ContactError> {
+    opts.validate()?;
+    mesh.check_positions(x)?;
+    mesh.check_positions(dx)?;
     let faces = mesh.faces();
     let edges = mesh.edges();
     let pt = candidates.point_triangle.par_iter().map(|c| {

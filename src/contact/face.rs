@@ -1,0 +1,423 @@
+//! The face's contact surfaces: the lips, the inside of the mouth and the teeth, taken from
+//! the artist's full-resolution render surface (what the user sees is what must not
+//! intersect) and bound to the simulation as the render surface is.
+//!
+//! Only the part of the face where surfaces can meet takes part (the *contact region*):
+//! - the **lip line**: skin vertices that the mouth socket shares (the inner edge of the lips);
+//! - **lips and inner mouth**: face-skin and mouth-socket vertices within `lip_reach` (cm, at
+//!   rest) of the lip line;
+//! - **teeth**: upper- and lower-teeth vertices within `teeth_reach` of those (the front teeth
+//!   the lips can reach; molars stay out).
+//!
+//! Contact vertex `i` is either embedded, `yᵢ = Σⱼ wⱼ·x_{tet[j]}` (linear in the simulation
+//! positions `x`: `y = W·x`, so gradients pull back by `Wᵀ` and Hessians by `Wᵀ·H·W`), or
+//! rigid with a bone (teeth, the deep mouth), an obstacle the bone pose moves.
+//!
+//! Pairs the simulation cannot influence are left out by groups (rigid–rigid: the teeth
+//! against each other are the jaw pose's business), and so are pairs already within d̂ at
+//! rest (neighbours along the finely tessellated surface, e.g. where the mouth socket turns
+//! from embedded to rigid): they are recorded at construction ([`FaceContact::rest_exclusions`]).
+//! Edge–triangle crossings present at rest (the rig's own, between pieces the importer does
+//! not repair) are recorded and left out of the after-solve check, which reports only new
+//! ones.
+
+use nalgebra::Point3;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use super::ContactError;
+use super::candidates::Candidates;
+use super::collisions::Collisions;
+use super::math::vertex;
+use super::mesh::ContactMesh;
+use crate::geometry::bvh::{Box3, BoxTree};
+use crate::model::{Binding, FaceModel};
+use crate::rig::Region;
+use crate::rig::intersect::segment_crosses_triangle;
+use crate::sim::{Bone, BonePose};
+
+/// Which part of the face takes part in contact.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct FaceContactSettings {
+    /// Skin and mouth-socket vertices within this distance of the lip line (cm, at rest).
+    pub lip_reach: f64,
+    /// Teeth vertices within this distance of the soft contact vertices (cm, at rest).
+    pub teeth_reach: f64,
+}
+
+impl Default for FaceContactSettings {
+    fn default() -> Self {
+        Self {
+            lip_reach: 1.5,
+            teeth_reach: 0.8,
+        }
+    }
+}
+
+/// How a contact vertex moves.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum ContactBinding {
+    /// `y = Σⱼ wⱼ·x_{tet[j]}`.
+    Embedded { tet: [u32; 4], weights: [f64; 4] },
+    /// With a bone, from its rest position.
+    Rigid { bone: Bone, rest: Point3<f64> },
+}
+
+/// Vertex groups: who may touch whom.
+const SOFT: u16 = 0;
+const ON_SKULL: u16 = 1;
+const ON_JAW: u16 = 2;
+
+/// The contact surfaces of one face, in their own vertex numbering (contact vertices).
+#[derive(Clone, Debug)]
+pub struct FaceContact {
+    /// Render-surface index of every contact vertex.
+    render_vertices: Vec<u32>,
+    bindings: Vec<ContactBinding>,
+    mesh: ContactMesh,
+    dhat: f64,
+    jaw_pivot: Point3<f64>,
+    sim_vertex_count: usize,
+    /// Edge–triangle crossings already present at rest: `(edge, face)`, sorted.
+    rest_crossings: Vec<(u32, u32)>,
+    /// The simulation vertices the embedded contact vertices depend on, sorted.
+    region_sim_vertices: Vec<u32>,
+    /// Counts per piece, for reports: lips/skin, mouth socket, upper teeth, lower teeth.
+    piece_counts: [usize; 4],
+    /// Rest positions of the lip line.
+    lip_line: Vec<Point3<f64>>,
+}
+
+impl FaceContact {
+    /// The contact region of `model` (see the module doc).
+    pub fn new(model: &FaceModel, settings: &FaceContactSettings) -> Result<Self, ContactError> {
+        let finite = settings.lip_reach.is_finite() && settings.teeth_reach.is_finite();
+        if !(settings.lip_reach > 0.0 && settings.teeth_reach >= 0.0 && finite) {
+            return Err(ContactError::InvalidParameter(format!(
+                "contact region reaches must be finite and positive, got {settings:?}"
+            )));
+        }
+        let render = &model.render;
+        let region: Vec<Option<Region>> = render
+            .rig_vertices
+            .iter()
+            .map(|&v| Region::of_vertex(v as usize))
+            .collect();
+        let is = |i: u32, r: Region| region[i as usize] == Some(r);
+        // The lip line: skin vertices used by mouth-socket triangles.
+        let mut lip_line = vec![false; render.rest.len()];
+        for t in &render.triangles {
+            if t.iter().any(|&v| is(v, Region::MouthSocket)) {
+                for &v in t.iter().filter(|&&v| is(v, Region::FaceSkin)) {
+                    lip_line[v as usize] = true;
+                }
+            }
+        }
+        let line_points: Vec<Point3<f64>> = (0..render.rest.len())
+            .filter(|&i| lip_line[i])
+            .map(|i| render.rest[i])
+            .collect();
+        if line_points.is_empty() {
+            return Err(ContactError::InvalidMesh(
+                "the render surface has no lip line (no skin vertex shared with the mouth socket)"
+                    .into(),
+            ));
+        }
+        let near = |p: &Point3<f64>, points: &[Point3<f64>], r: f64| {
+            let r2 = r * r;
+            points.iter().any(|q| (p - q).norm_squared() <= r2)
+        };
+        let soft: Vec<bool> = (0..render.rest.len())
+            .into_par_iter()
+            .map(|i| {
+                matches!(region[i], Some(Region::FaceSkin | Region::MouthSocket))
+                    && near(&render.rest[i], &line_points, settings.lip_reach)
+            })
+            .collect();
+        let soft_points: Vec<Point3<f64>> = (0..render.rest.len())
+            .filter(|&i| soft[i])
+            .map(|i| render.rest[i])
+            .collect();
+        let chosen: Vec<bool> = (0..render.rest.len())
+            .into_par_iter()
+            .map(|i| {
+                soft[i]
+                    || (matches!(region[i], Some(Region::UpperTeeth | Region::LowerTeeth))
+                        && near(&render.rest[i], &soft_points, settings.teeth_reach))
+            })
+            .collect();
+        let triangles: Vec<[u32; 3]> = render
+            .triangles
+            .iter()
+            .filter(|t| t.iter().all(|&v| chosen[v as usize]))
+            .copied()
+            .collect();
+        let mut used = vec![u32::MAX; render.rest.len()];
+        let mut render_vertices = Vec::new();
+        for t in &triangles {
+            for &v in t {
+                if used[v as usize] == u32::MAX {
+                    used[v as usize] = 0;
+                }
+            }
+        }
+        for (i, slot) in used.iter_mut().enumerate() {
+            if *slot == 0 {
+                *slot = render_vertices.len() as u32;
+                render_vertices.push(i as u32);
+            }
+        }
+        let faces: Vec<[u32; 3]> = triangles
+            .iter()
+            .map(|t| t.map(|v| used[v as usize]))
+            .collect();
+        let bindings: Vec<ContactBinding> = render_vertices
+            .iter()
+            .map(|&r| match render.bindings[r as usize] {
+                Binding::Embedded { element, weights } => ContactBinding::Embedded {
+                    tet: model.mesh.tets[element as usize],
+                    weights,
+                },
+                Binding::Rigid(bone) => ContactBinding::Rigid {
+                    bone,
+                    rest: render.rest[r as usize],
+                },
+            })
+            .collect();
+        let group: Vec<u16> = bindings
+            .iter()
+            .map(|b| match b {
+                ContactBinding::Embedded { .. } => SOFT,
+                ContactBinding::Rigid {
+                    bone: Bone::Skull, ..
+                } => ON_SKULL,
+                ContactBinding::Rigid {
+                    bone: Bone::Jaw, ..
+                } => ON_JAW,
+            })
+            .collect();
+        let can_touch = [
+            vec![true, true, true],
+            vec![true, false, false],
+            vec![true, false, false],
+        ];
+        let rest: Vec<f64> = render_vertices
+            .iter()
+            .flat_map(|&r| {
+                let p = render.rest[r as usize];
+                [p.x, p.y, p.z]
+            })
+            .collect();
+        let mesh = ContactMesh::with_groups(&rest, faces, group, &can_touch)?;
+        let dhat = model.d_hat;
+        // Pairs within d̂ at rest are neighbours along the surface: left out.
+        let candidates = Candidates::build(&mesh, &rest, dhat)?;
+        let dhat2 = dhat * dhat;
+        let close_pt: Vec<(u32, u32)> = candidates
+            .point_triangle
+            .iter()
+            .filter(|c| {
+                let f = mesh.faces()[c.face as usize];
+                let p = super::math::stencil(&rest, [c.vertex, f[0], f[1], f[2]]);
+                super::CollisionKind::PointTriangle.distance_squared(&p) < dhat2
+            })
+            .map(|c| (c.vertex, c.face))
+            .collect();
+        let close_ee: Vec<(u32, u32)> = candidates
+            .edge_edge
+            .iter()
+            .filter(|c| {
+                let [a0, a1] = mesh.edges()[c.edge_a as usize];
+                let [b0, b1] = mesh.edges()[c.edge_b as usize];
+                let p = super::math::stencil(&rest, [a0, a1, b0, b1]);
+                super::CollisionKind::EdgeEdge.distance_squared(&p) < dhat2
+            })
+            .map(|c| (c.edge_a, c.edge_b))
+            .collect();
+        let mesh = mesh.with_exclusions(close_pt, close_ee);
+        let mut region_sim_vertices: Vec<u32> = bindings
+            .iter()
+            .filter_map(|b| match b {
+                ContactBinding::Embedded { tet, .. } => Some(*tet),
+                ContactBinding::Rigid { .. } => None,
+            })
+            .flatten()
+            .collect();
+        region_sim_vertices.sort_unstable();
+        region_sim_vertices.dedup();
+        let mut piece_counts = [0; 4];
+        for &r in &render_vertices {
+            let k = match region[r as usize] {
+                Some(Region::FaceSkin) => 0,
+                Some(Region::MouthSocket) => 1,
+                Some(Region::UpperTeeth) => 2,
+                _ => 3,
+            };
+            piece_counts[k] += 1;
+        }
+        let mut contact = Self {
+            render_vertices,
+            bindings,
+            mesh,
+            dhat,
+            jaw_pivot: model.jaw_pivot,
+            sim_vertex_count: model.mesh.vertex_count(),
+            rest_crossings: Vec::new(),
+            region_sim_vertices,
+            piece_counts,
+            lip_line: line_points,
+        };
+        contact.rest_crossings = contact.crossings(&rest);
+        Ok(contact)
+    }
+
+    /// Rest positions of the lip line (skin vertices shared with the mouth socket).
+    pub fn lip_line(&self) -> &[Point3<f64>] {
+        &self.lip_line
+    }
+
+    /// The contact surface over contact vertices.
+    pub fn mesh(&self) -> &ContactMesh {
+        &self.mesh
+    }
+
+    /// Activation distance d̂ (cm).
+    pub fn dhat(&self) -> f64 {
+        self.dhat
+    }
+
+    pub fn vertex_count(&self) -> usize {
+        self.bindings.len()
+    }
+
+    pub fn bindings(&self) -> &[ContactBinding] {
+        &self.bindings
+    }
+
+    /// Render-surface index of every contact vertex.
+    pub fn render_vertices(&self) -> &[u32] {
+        &self.render_vertices
+    }
+
+    /// Simulation vertices the embedded contact vertices depend on (sorted).
+    pub fn region_sim_vertices(&self) -> &[u32] {
+        &self.region_sim_vertices
+    }
+
+    /// Simulation vertex count this surface was built for.
+    pub fn sim_vertex_count(&self) -> usize {
+        self.sim_vertex_count
+    }
+
+    /// Contact vertices per piece: `[lips and skin, mouth socket, upper teeth, lower teeth]`.
+    pub fn piece_counts(&self) -> [usize; 4] {
+        self.piece_counts
+    }
+
+    /// Pairs left out because they are within d̂ at rest: (point–triangle, edge–edge).
+    pub fn rest_exclusions(&self) -> (usize, usize) {
+        self.mesh.exclusion_counts()
+    }
+
+    /// Edge–triangle crossings present at rest (left out of [`FaceContact::new_crossings`]).
+    pub fn rest_crossing_count(&self) -> usize {
+        self.rest_crossings.len()
+    }
+
+    /// Contact positions `y` (interleaved, `3·vertex_count`) for simulation positions `x`.
+    pub fn positions(&self, x: &[f64], bones: &BonePose, y: &mut [f64]) {
+        y.par_chunks_mut(3)
+            .zip(&self.bindings)
+            .for_each(|(out, b)| out.copy_from_slice(self.position(b, x, bones).coords.as_slice()));
+    }
+
+    fn position(&self, b: &ContactBinding, x: &[f64], bones: &BonePose) -> Point3<f64> {
+        match b {
+            ContactBinding::Embedded { tet, weights } => {
+                crate::geometry::embedding::interpolate(tet, weights, x)
+            }
+            ContactBinding::Rigid { bone, rest } => bones.target(*bone, &self.jaw_pivot, rest),
+        }
+    }
+
+    /// `W·dx`: how a simulation displacement moves the contact vertices (rigid ones stay).
+    pub fn displacement(&self, dx: &[f64], dy: &mut [f64]) {
+        dy.par_chunks_mut(3)
+            .zip(&self.bindings)
+            .for_each(|(out, b)| match b {
+                ContactBinding::Embedded { tet, weights } => out.copy_from_slice(
+                    crate::geometry::embedding::interpolate(tet, weights, dx)
+                        .coords
+                        .as_slice(),
+                ),
+                ContactBinding::Rigid { .. } => out.fill(0.0),
+            });
+    }
+
+    /// `gx += Wᵀ·gy`: a contact-space gradient pulled back to the simulation vertices (in
+    /// contact-vertex order: deterministic).
+    pub fn add_pulled_back(&self, gy: &[f64], gx: &mut [f64]) {
+        for (i, b) in self.bindings.iter().enumerate() {
+            if let ContactBinding::Embedded { tet, weights } = b {
+                for (&v, &w) in tet.iter().zip(weights) {
+                    for k in 0..3 {
+                        gx[3 * v as usize + k] += w * gy[3 * i + k];
+                    }
+                }
+            }
+        }
+    }
+
+    /// Active pairs (closer than d̂) at contact positions `y`.
+    pub fn collisions(&self, y: &[f64]) -> Result<Collisions, ContactError> {
+        Collisions::build(&self.mesh, y, self.dhat)
+    }
+
+    /// Edge–triangle crossings of the contact surface at `y` that were not there at rest,
+    /// `(edge, face)` sorted. Rigid–rigid pairs (teeth against teeth: the jaw pose's
+    /// business) and pairs sharing a vertex are not checked.
+    pub fn new_crossings(&self, y: &[f64]) -> Vec<(u32, u32)> {
+        self.crossings(y)
+            .into_iter()
+            .filter(|p| self.rest_crossings.binary_search(p).is_err())
+            .collect()
+    }
+
+    fn crossings(&self, y: &[f64]) -> Vec<(u32, u32)> {
+        let faces = self.mesh.faces();
+        let edges = self.mesh.edges();
+        let boxes: Vec<Box3> = faces
+            .iter()
+            .map(|f| Box3::around_iter(f.iter().map(|&v| Point3::from(vertex(y, v))), 0.0))
+            .collect();
+        let tree = BoxTree::new(&boxes);
+        let mut out: Vec<(u32, u32)> = edges
+            .par_iter()
+            .enumerate()
+            .flat_map_iter(|(e, &[a, b])| {
+                let (pa, pb) = (Point3::from(vertex(y, a)), Point3::from(vertex(y, b)));
+                let mut found = Vec::new();
+                tree.overlapping(&Box3::around(&[pa, pb], 0.0), &mut found);
+                found
+                    .into_iter()
+                    .filter(move |&f| {
+                        let t = faces[f as usize];
+                        if t.contains(&a) || t.contains(&b) {
+                            return false;
+                        }
+                        let rigid_pair = [a, b]
+                            .iter()
+                            .all(|&p| t.iter().all(|&q| !self.mesh.can_touch(p, q)));
+                        if rigid_pair {
+                            return false;
+                        }
+                        let tp = t.map(|v| Point3::from(vertex(y, v)));
+                        segment_crosses_triangle(&pa, &pb, [&tp[0], &tp[1], &tp[2]], t)
+                    })
+                    .map(move |f| (e as u32, f))
+            })
+            .collect();
+        out.sort_unstable();
+        out
+    }
+}

@@ -1,0 +1,705 @@
+//! Contact inside the solve: the IPC barrier `κ·B(y(x))` on the face's contact surfaces
+//! ([`FaceContact`], `y = W·x` for embedded vertices, bone-driven for rigid ones) added to the
+//! elastic energy, with a collision-checked line search and contact-aware steps.
+//!
+//! - **Energy and gradient**: `E(x) + κ·B(y)`, gradient `∇E + κ·Wᵀ∇B`.
+//! - **Steps**: the L-BFGS initial inverse Hessian becomes `(L + K)⁻¹` with
+//!   `K = Wᵀ·[∇²B]₊·W` (PSD-projected barrier Hessian pulled back to the simulation), so the
+//!   barrier's stiffness is in every step. `K` lives on the few simulation vertices the active
+//!   pairs touch (`a` of them), so the prefactored `L` is kept and `K` enters as a low-rank
+//!   update (Woodbury): `(L + UKUᵀ)⁻¹ = L⁻¹ − L⁻¹U·(I + K·G)⁻¹·K·UᵀL⁻¹` with
+//!   `G = UᵀL⁻¹U`, read from the block of `L⁻¹` over the contact region, computed once per
+//!   simulator. Each step costs two solves with `L` and a dense `3a × 3a` LU.
+//!   [`ContactStep::Refactor`] instead factors the full `3n × 3n` matrix `L⊗I₃ + K` at every
+//!   step: `facesim bench contact` measures both (the low-rank update is the default because
+//!   it is faster).
+//! - **Line search**: each step's candidate pairs come from boxes swept along the step and
+//!   grown by d̂; additive CCD over them caps the step so no pair ever reaches distance 0, and
+//!   the barrier of every trial is evaluated over the same candidates (so no pair that comes
+//!   within d̂ during the step is missed).
+//! - **Stiffness**: κ starts where the barrier gradient balances the elastic one (ipc-toolkit's
+//!   rule, with the mean diagonal of `L` over the contact region as the stiffness scale) and
+//!   doubles while the closest pair keeps approaching at a tiny distance.
+
+use std::time::{Duration, Instant};
+
+use faer::dyn_stack::{MemBuffer, MemStack};
+use faer::sparse::linalg::cholesky::{
+    CholeskySymbolicParams, LltRef, SymmetricOrdering, factorize_symbolic_cholesky,
+};
+use faer::sparse::{SparseColMat, Triplet};
+use faer::{Conj, Mat, Par, Side};
+use nalgebra::DMatrix;
+use serde::{Deserialize, Serialize};
+
+use super::attachment::BonePose;
+use super::global_matrix::{GlobalMatrix, SolveScratch};
+use crate::contact::barrier::{initial_barrier_stiffness, update_barrier_stiffness};
+use crate::contact::face::{ContactBinding, FaceContact};
+use crate::contact::{
+    BarrierPotential, Candidates, CcdOptions, Collisions, ContactError, HessianBlock, Projection,
+    collision_free_step_over,
+};
+
+/// Longest move of a contact vertex in one line-search step (cm).
+const MAX_CONTACT_MOVE: f64 = 0.25;
+/// Smallest Verlet-list slack δ, in units of d̂.
+const VERLET_SLACK: f64 = 1.0;
+/// Advances per pair in the additive CCD; a capped pair keeps the (safe) time it reached.
+const CCD_MAX_ITERATIONS: u64 = 200;
+
+/// How contact-aware steps bring in the barrier's curvature.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ContactStep {
+    /// Keep the prefactored `L`; add the barrier Hessian as a low-rank (Woodbury) update.
+    #[default]
+    LowRankUpdate,
+    /// Factor `L⊗I₃ + K` from scratch at every step (the reference it is measured against).
+    Refactor,
+}
+
+/// What contact did during a solve.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct ContactStats {
+    /// Active pairs (closer than d̂) at the end.
+    pub active_pairs: usize,
+    /// Smallest distance between contact surfaces at the end (cm; d̂ when none is active).
+    pub min_distance: f64,
+    /// Barrier stiffness at the end.
+    pub stiffness: f64,
+    /// Line-search steps that CCD shortened.
+    pub ccd_limited_steps: usize,
+    /// Bone-pose stages (1 unless moving the teeth straight to the new pose would cross a
+    /// surface; then the pose is reached in collision-free stages).
+    pub pose_stages: usize,
+    /// Edge–triangle crossings of the contact surface after the solve that were not there at
+    /// rest: always 0 in a returned result (anything else is [`super::SimError::Intersecting`]).
+    pub new_crossings: usize,
+    /// Candidate lists built (the rest of the steps reused one).
+    pub candidate_builds: usize,
+    /// Time building candidate pairs (BVH over grown boxes) and checking they still cover
+    /// the step.
+    pub broad_phase_time: Duration,
+    /// Time evaluating the barrier (active sets, value, gradient, Hessian, PSD projection).
+    pub barrier_time: Duration,
+    /// Time in continuous collision detection.
+    pub ccd_time: Duration,
+    /// Time in contact-aware linear algebra (the Woodbury LU or the refactorization, the
+    /// extra solves).
+    pub linear_time: Duration,
+}
+
+/// Contact set up for a simulator: the face's surfaces and the block of `L⁻¹` over the
+/// simulation vertices they touch.
+pub(crate) struct ContactModel {
+    pub(crate) face: FaceContact,
+    /// Slot of every simulation vertex in the region (`u32::MAX` outside).
+    region_slot: Vec<u32>,
+    /// `(L⁻¹)` restricted to region vertices, `r × r` row-major.
+    inverse_block: Vec<f64>,
+    region: usize,
+    /// Mean diagonal of `L` over the region: the stiffness scale for κ.
+    stiffness_scale: f64,
+    pub(crate) step: ContactStep,
+}
+
+impl ContactModel {
+    pub(crate) fn new(face: FaceContact, global: &GlobalMatrix) -> Self {
+        let n = global.dimension();
+        let region_vertices = face.region_sim_vertices().to_vec();
+        let r = region_vertices.len();
+        let mut region_slot = vec![u32::MAX; n];
+        for (s, &v) in region_vertices.iter().enumerate() {
+            region_slot[v as usize] = s as u32;
+        }
+        // Columns of L⁻¹ for region vertices, three at a time (one per coordinate of one
+        // right-hand side); L is symmetric, so columns are rows.
+        let mut inverse_block = vec![0.0; r * r];
+        let mut scratch = global.scratch();
+        let mut rhs = vec![0.0; 3 * n];
+        for chunk in region_vertices.chunks(3).enumerate() {
+            let (c, vs) = chunk;
+            rhs.fill(0.0);
+            for (k, &v) in vs.iter().enumerate() {
+                rhs[3 * v as usize + k] = 1.0;
+            }
+            global.solve_in_place(&mut rhs, &mut scratch);
+            for (k, _) in vs.iter().enumerate() {
+                let col = 3 * c + k;
+                for (row, &w) in region_vertices.iter().enumerate() {
+                    inverse_block[row * r + col] = rhs[3 * w as usize + k];
+                }
+            }
+        }
+        let stiffness_scale = if r == 0 {
+            1.0
+        } else {
+            region_vertices
+                .iter()
+                .map(|&v| global.diagonal()[v as usize])
+                .sum::<f64>()
+                / r as f64
+        };
+        Self {
+            face,
+            region_slot,
+            inverse_block,
+            region: r,
+            stiffness_scale,
+            step: ContactStep::default(),
+        }
+    }
+}
+
+/// `K = Wᵀ·H·W` over the simulation vertices the blocks touch: dense `3a × 3a`.
+struct PulledBackHessian {
+    vertices: Vec<u32>,
+    k: DMatrix<f64>,
+}
+
+fn pull_back(face: &FaceContact, blocks: &[HessianBlock], n: usize) -> PulledBackHessian {
+    let bindings = face.bindings();
+    let mut slot = vec![u32::MAX; n];
+    let mut vertices = Vec::new();
+    for b in blocks {
+        for &cv in &b.vertices {
+            if let ContactBinding::Embedded { tet, .. } = bindings[cv as usize] {
+                for v in tet {
+                    if slot[v as usize] == u32::MAX {
+                        slot[v as usize] = 0;
+                        vertices.push(v);
+                    }
+                }
+            }
+        }
+    }
+    vertices.sort_unstable();
+    for (i, &v) in vertices.iter().enumerate() {
+        slot[v as usize] = i as u32;
+    }
+    let a = vertices.len();
+    let mut k = DMatrix::zeros(3 * a, 3 * a);
+    for b in blocks {
+        for (p, &cp) in b.vertices.iter().enumerate() {
+            let ContactBinding::Embedded {
+                tet: tp,
+                weights: wp,
+            } = bindings[cp as usize]
+            else {
+                continue;
+            };
+            for (q, &cq) in b.vertices.iter().enumerate() {
+                let ContactBinding::Embedded {
+                    tet: tq,
+                    weights: wq,
+                } = bindings[cq as usize]
+                else {
+                    continue;
+                };
+                let h = b.matrix.fixed_view::<3, 3>(3 * p, 3 * q);
+                for i in 0..4 {
+                    let si = 3 * slot[tp[i] as usize] as usize;
+                    for j in 0..4 {
+                        let sj = 3 * slot[tq[j] as usize] as usize;
+                        let w = wp[i] * wq[j];
+                        for r in 0..3 {
+                            for c in 0..3 {
+                                k[(si + r, sj + c)] += w * h[(r, c)];
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+    PulledBackHessian { vertices, k }
+}
+
+/// The contact-aware `H₀⁻¹` of the current step.
+enum StepSolver {
+    /// No active pair: `L⁻¹`.
+    Plain,
+    /// `L⁻¹ − L⁻¹U·S⁻¹·K·UᵀL⁻¹`, `S = I + K·(G⊗I₃)`.
+    LowRank {
+        vertices: Vec<u32>,
+        k: DMatrix<f64>,
+        s: nalgebra::LU<f64, nalgebra::Dyn, nalgebra::Dyn>,
+    },
+    /// `(L⊗I₃ + K)⁻¹` factored anew.
+    Refactored {
+        symbolic: faer::sparse::linalg::cholesky::SymbolicCholesky<usize>,
+        values: Vec<f64>,
+    },
+}
+
+/// Per-solve contact state: positions, the active set, κ, the step's candidates and solver.
+pub(crate) struct ContactSolve<'a> {
+    model: &'a ContactModel,
+    global: &'a GlobalMatrix,
+    pub(crate) potential: BarrierPotential,
+    kappa_max: f64,
+    bbox: f64,
+    /// Contact positions at the current `x`, and the active set there.
+    y: Vec<f64>,
+    collisions: Collisions,
+    /// Unit-stiffness barrier `Σ m·b` at the current `x`.
+    barrier: f64,
+    prev_min_distance2: f64,
+    /// The current step: `W·d`, its candidates, the trial positions and active set.
+    dy: Vec<f64>,
+    candidates: Candidates,
+    /// Where the candidates were built and the slack δ they allow.
+    verlet: Option<(Vec<f64>, f64)>,
+    y_trial: Vec<f64>,
+    trial_collisions: Collisions,
+    trial_barrier: f64,
+    solver: StepSolver,
+    pub(crate) stats: ContactStats,
+}
+
+impl<'a> ContactSolve<'a> {
+    /// Starts at `x`: the active set, and κ balanced against the elastic gradient `g_el`.
+    pub(crate) fn start(
+        model: &'a ContactModel,
+        global: &'a GlobalMatrix,
+        x: &[f64],
+        bones: &BonePose,
+        g_el: &[f64],
+    ) -> Result<Self, ContactError> {
+        let m = model.face.vertex_count();
+        let mut y = vec![0.0; 3 * m];
+        model.face.positions(x, bones, &mut y);
+        let dhat = model.face.dhat();
+        let t = Instant::now();
+        let collisions = Collisions::build(model.face.mesh(), &y, dhat)?;
+        let broad = t.elapsed();
+        let t = Instant::now();
+        let unit = BarrierPotential::new(dhat, 1.0)?;
+        let mut gb_y = vec![0.0; 3 * m];
+        unit.add_gradient(&collisions, &y, &mut gb_y)?;
+        let mut gb = vec![0.0; g_el.len()];
+        model.face.add_pulled_back(&gb_y, &mut gb);
+        let bbox = model.face.mesh().bbox_diagonal(&y);
+        let (kappa, kappa_max) =
+            initial_barrier_stiffness(bbox, dhat, model.stiffness_scale, g_el, &gb, 1e11);
+        let barrier = unit.value(&collisions, &y)?;
+        let potential = BarrierPotential::new(dhat, kappa)?;
+        let stats = ContactStats {
+            stiffness: kappa,
+            broad_phase_time: broad,
+            barrier_time: t.elapsed(),
+            pose_stages: 1,
+            ..ContactStats::default()
+        };
+        let prev_min_distance2 = collisions.min_distance_squared();
+        let mut solve = Self {
+            model,
+            global,
+            potential,
+            kappa_max,
+            bbox,
+            y,
+            collisions,
+            barrier,
+            prev_min_distance2,
+            dy: vec![0.0; 3 * m],
+            candidates: Candidates::default(),
+            verlet: None,
+            y_trial: vec![0.0; 3 * m],
+            trial_collisions: Collisions::default(),
+            trial_barrier: 0.0,
+            solver: StepSolver::Plain,
+            stats,
+        };
+        solve.update_solver(g_el.len() / 3)?;
+        Ok(solve)
+    }
+
+    /// `κ·B` at the current `x`.
+    pub(crate) fn energy(&self) -> f64 {
+        self.potential.stiffness * self.barrier
+    }
+
+    /// `g += κ·Wᵀ∇B` at the current `x`.
+    pub(crate) fn add_gradient(&mut self, g: &mut [f64]) -> Result<(), ContactError> {
+        let t = Instant::now();
+        let gy = self.potential.gradient(&self.collisions, &self.y)?;
+        self.model.face.add_pulled_back(&gy, g);
+        self.stats.barrier_time += t.elapsed();
+        Ok(())
+    }
+
+    /// `g += κ·Wᵀ∇B` at the trial point.
+    pub(crate) fn add_trial_gradient(&mut self, g: &mut [f64]) -> Result<(), ContactError> {
+        let t = Instant::now();
+        let gy = self
+            .potential
+            .gradient(&self.trial_collisions, &self.y_trial)?;
+        self.model.face.add_pulled_back(&gy, g);
+        self.stats.barrier_time += t.elapsed();
+        Ok(())
+    }
+
+    /// Prepares the step `x → x + α·d`: its candidate pairs and the largest collision-free
+    /// `α ∈ [0, 1]`. Steps that would move a contact vertex farther than
+    /// [`MAX_CONTACT_MOVE`] are shortened first (a trust region that keeps the broad phase
+    /// local).
+    ///
+    /// Candidates are kept between steps (a Verlet list): they are built at positions `y₀`
+    /// with boxes grown by `d̂ + 2δ`, which covers every pair that can come within d̂ while
+    /// each vertex stays within `δ` (per coordinate) of `y₀`. A step is checked against that
+    /// and the list is rebuilt only when some vertex would leave its slack.
+    pub(crate) fn max_step(&mut self, d: &[f64]) -> Result<f64, ContactError> {
+        self.model.face.displacement(d, &mut self.dy);
+        let longest = self
+            .dy
+            .chunks_exact(3)
+            .map(|v| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt())
+            .fold(0.0, f64::max);
+        let cap = if longest > MAX_CONTACT_MOVE {
+            MAX_CONTACT_MOVE / longest
+        } else {
+            1.0
+        };
+        let swept: Vec<f64> = self.dy.iter().map(|v| cap * v).collect();
+        let mesh = self.model.face.mesh();
+        let t = Instant::now();
+        let inside = |slack: f64, from: &[f64]| {
+            self.y
+                .iter()
+                .zip(&swept)
+                .zip(from)
+                .all(|((y, s), y0)| (y - y0).abs() <= slack && (y + s - y0).abs() <= slack)
+        };
+        let valid = self
+            .verlet
+            .as_ref()
+            .is_some_and(|(from, slack)| inside(*slack, from));
+        if !valid {
+            let step = swept.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            let slack = VERLET_SLACK * self.potential.dhat;
+            if step <= slack {
+                self.candidates =
+                    Candidates::build(mesh, &self.y, self.potential.dhat + 2.0 * slack)?;
+                self.verlet = Some((self.y.clone(), slack));
+            } else {
+                // A long step: candidates for this step alone (swept boxes grown by d̂).
+                self.candidates =
+                    Candidates::build_swept(mesh, &self.y, &swept, self.potential.dhat)?;
+                self.verlet = None;
+            }
+            self.stats.candidate_builds += 1;
+        }
+        self.stats.broad_phase_time += t.elapsed();
+        let t = Instant::now();
+        let report = collision_free_step_over(
+            mesh,
+            &self.candidates,
+            &self.y,
+            &swept,
+            &CcdOptions {
+                max_iterations: CCD_MAX_ITERATIONS,
+                ..CcdOptions::default()
+            },
+        )?;
+        self.stats.ccd_time += t.elapsed();
+        if report.step < 1.0 {
+            self.stats.ccd_limited_steps += 1;
+        }
+        Ok(cap * report.step)
+    }
+
+    /// `κ·B` at the trial point `x + α·d` of the prepared step.
+    pub(crate) fn trial_energy(&mut self, alpha: f64) -> Result<f64, ContactError> {
+        let t = Instant::now();
+        for ((yt, y), dy) in self.y_trial.iter_mut().zip(&self.y).zip(&self.dy) {
+            *yt = y + alpha * dy;
+        }
+        let mesh = self.model.face.mesh();
+        self.trial_collisions = Collisions::from_candidates(
+            mesh,
+            &self.candidates,
+            &self.y_trial,
+            self.potential.dhat,
+        )?;
+        let unit = BarrierPotential::new(self.potential.dhat, 1.0)?;
+        self.trial_barrier = unit.value(&self.trial_collisions, &self.y_trial)?;
+        self.stats.barrier_time += t.elapsed();
+        Ok(self.potential.stiffness * self.trial_barrier)
+    }
+
+    /// `κ·B` at the last trial point.
+    pub(crate) fn trial_energy_value(&self) -> f64 {
+        self.potential.stiffness * self.trial_barrier
+    }
+
+    /// Moves to the accepted trial point; updates κ and the step solver. Returns the new
+    /// `κ·B` (κ may have changed).
+    pub(crate) fn accept(&mut self, n: usize) -> Result<f64, ContactError> {
+        std::mem::swap(&mut self.y, &mut self.y_trial);
+        std::mem::swap(&mut self.collisions, &mut self.trial_collisions);
+        self.barrier = self.trial_barrier;
+        let min_d2 = self.collisions.min_distance_squared();
+        let kappa = update_barrier_stiffness(
+            self.prev_min_distance2,
+            min_d2,
+            self.kappa_max,
+            self.potential.stiffness,
+            self.bbox,
+            1e-9,
+        );
+        self.prev_min_distance2 = min_d2;
+        self.potential.stiffness = kappa;
+        self.update_solver(n)?;
+        Ok(self.energy())
+    }
+
+    /// Rebuilds the contact-aware step solver at the current `x`.
+    fn update_solver(&mut self, n: usize) -> Result<(), ContactError> {
+        if self.collisions.is_empty() {
+            self.solver = StepSolver::Plain;
+            return Ok(());
+        }
+        let t = Instant::now();
+        let blocks =
+            self.potential
+                .hessian(&self.collisions, &self.y, Projection::ClampEigenvalues)?;
+        self.stats.barrier_time += t.elapsed();
+        let t = Instant::now();
+        let pulled = pull_back(&self.model.face, &blocks, n);
+        self.solver = match self.model.step {
+            ContactStep::LowRankUpdate => {
+                let a = pulled.vertices.len();
+                let r = self.model.region;
+                let slots: Vec<usize> = pulled
+                    .vertices
+                    .iter()
+                    .map(|&v| self.model.region_slot[v as usize] as usize)
+                    .collect();
+                // S = I + K·(G⊗I₃).
+                let mut g = DMatrix::<f64>::zeros(3 * a, 3 * a);
+                for (i, &si) in slots.iter().enumerate() {
+                    for (j, &sj) in slots.iter().enumerate() {
+                        let v = self.model.inverse_block[si * r + sj];
+                        for c in 0..3 {
+                            g[(3 * i + c, 3 * j + c)] = v;
+                        }
+                    }
+                }
+                let mut s = DMatrix::<f64>::identity(3 * a, 3 * a);
+                s.gemm(1.0, &pulled.k, &g, 1.0);
+                StepSolver::LowRank {
+                    vertices: pulled.vertices,
+                    k: pulled.k,
+                    s: s.lu(),
+                }
+            }
+            ContactStep::Refactor => refactor(self.global, &pulled, n)?,
+        };
+        self.stats.linear_time += t.elapsed();
+        Ok(())
+    }
+
+    /// `d ← H₀·d` with `H₀ = (L + K)⁻¹` (see the module doc).
+    pub(crate) fn apply_inverse(&mut self, d: &mut [f64], scratch: &mut SolveScratch) {
+        let global = self.global;
+        let t = Instant::now();
+        match &self.solver {
+            StepSolver::Plain => global.solve_in_place(d, scratch),
+            StepSolver::LowRank { vertices, k, s } => {
+                global.solve_in_place(d, scratch);
+                let a = vertices.len();
+                let za = nalgebra::DVector::from_iterator(
+                    3 * a,
+                    vertices
+                        .iter()
+                        .flat_map(|&v| (0..3).map(move |c| 3 * v as usize + c))
+                        .map(|i| d[i]),
+                );
+                let w = s
+                    .solve(&(k * za))
+                    .expect("S = I + K·G is invertible for PSD K and SPD G");
+                let mut t = vec![0.0; d.len()];
+                for (i, &v) in vertices.iter().enumerate() {
+                    for c in 0..3 {
+                        t[3 * v as usize + c] = w[3 * i + c];
+                    }
+                }
+                global.solve_in_place(&mut t, scratch);
+                for (di, ti) in d.iter_mut().zip(&t) {
+                    *di -= ti;
+                }
+            }
+            StepSolver::Refactored { symbolic, values } => {
+                let mut rhs = Mat::<f64>::zeros(d.len(), 1);
+                for (i, &v) in d.iter().enumerate() {
+                    rhs[(i, 0)] = v;
+                }
+                let mut stack = MemBuffer::new(symbolic.solve_in_place_scratch::<f64>(1, Par::Seq));
+                LltRef::new(symbolic, values).solve_in_place_with_conj(
+                    Conj::No,
+                    rhs.as_mut(),
+                    Par::Seq,
+                    MemStack::new(&mut stack),
+                );
+                for (i, v) in d.iter_mut().enumerate() {
+                    *v = rhs[(i, 0)];
+                }
+            }
+        }
+        self.stats.linear_time += t.elapsed();
+    }
+
+    /// Fills the end-of-solve statistics.
+    pub(crate) fn finish(mut self) -> ContactStats {
+        self.stats.active_pairs = self.collisions.len();
+        self.stats.min_distance = self.collisions.min_distance_squared().sqrt();
+        self.stats.stiffness = self.potential.stiffness;
+        self.stats
+    }
+}
+
+/// `L⊗I₃ + K` assembled and factored from scratch (the reference the low-rank update is
+/// measured against).
+fn refactor(
+    global: &GlobalMatrix,
+    pulled: &PulledBackHessian,
+    n: usize,
+) -> Result<StepSolver, ContactError> {
+    let lower = global.lower_entries();
+    let mut triplets = Vec::with_capacity(3 * lower.len() + pulled.k.len() / 2 + 1);
+    for e in lower {
+        for c in 0..3 {
+            triplets.push(Triplet::new(3 * e.row + c, 3 * e.col + c, e.val));
+        }
+    }
+    for (i, &vi) in pulled.vertices.iter().enumerate() {
+        for (j, &vj) in pulled.vertices.iter().enumerate() {
+            for r in 0..3 {
+                for c in 0..3 {
+                    let (gi, gj) = (3 * vi as usize + r, 3 * vj as usize + c);
+                    if gi >= gj {
+                        triplets.push(Triplet::new(gi, gj, pulled.k[(3 * i + r, 3 * j + c)]));
+                    }
+                }
+            }
+        }
+    }
+    let (symbolic, values) = factor_triplets(3 * n, &triplets)
+        .map_err(|e| ContactError::InvalidParameter(format!("factoring L + K failed: {e}")))?;
+    Ok(StepSolver::Refactored { symbolic, values })
+}
+
+/// Factors a lower-triangle `dim × dim` matrix given as triplets (symbolic and numeric).
+pub(crate) fn factor_triplets(
+    dim: usize,
+    triplets: &[Triplet<usize, usize, f64>],
+) -> Result<
+    (
+        faer::sparse::linalg::cholesky::SymbolicCholesky<usize>,
+        Vec<f64>,
+    ),
+    String,
+> {
+    let matrix = SparseColMat::<usize, f64>::try_new_from_triplets(dim, dim, triplets)
+        .map_err(|e| format!("{e:?}"))?;
+    let symbolic = factorize_symbolic_cholesky(
+        matrix.symbolic(),
+        Side::Lower,
+        SymmetricOrdering::Amd,
+        CholeskySymbolicParams::default(),
+    )
+    .map_err(|e| format!("{e:?}"))?;
+    let mut values = vec![0.0; symbolic.len_val()];
+    let mut stack =
+        MemBuffer::new(symbolic.factorize_numeric_llt_scratch::<f64>(Par::Seq, Default::default()));
+    symbolic
+        .factorize_numeric_llt(
+            &mut values,
+            matrix.as_ref(),
+            Side::Lower,
+            Default::default(),
+            Par::Seq,
+            MemStack::new(&mut stack),
+            Default::default(),
+        )
+        .map_err(|e| format!("{e:?}"))?;
+    Ok((symbolic, values))
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::contact::drive::{LipField, MouthPose};
+    use crate::contact::face::{FaceContact, FaceContactSettings};
+    use crate::model::{Lod, build_face};
+    use crate::sim::Quality;
+
+    /// The barrier is part of the energy that sensitivities differentiate: at a solved state
+    /// with active contact, `H·v` (elastic + exact barrier Hessian) matches central finite
+    /// differences of `∇E` (elastic + barrier gradient).
+    #[test]
+    fn barrier_hessian_and_gradient_match_finite_differences() {
+        let model = build_face(
+            crate::rig::test_support::rig(),
+            None,
+            &Lod::Coarse.settings(),
+        )
+        .unwrap();
+        let face = FaceContact::new(&model, &FaceContactSettings::default()).unwrap();
+        let field = LipField::new(&model, &face, 1.5);
+        let mut sim = model.simulator().unwrap();
+        sim.set_contact(face).unwrap();
+        let pose = MouthPose {
+            press: 1.0,
+            purse: 0.5,
+            ..MouthPose::default()
+        };
+        let (act, bones) = (field.actuations(&pose), pose.bones());
+        let mut state = sim.rest_state();
+        let stats = sim
+            .solve(&act, &bones, &mut state, &Quality::Interactive.settings())
+            .unwrap();
+        let contact = stats.contact.unwrap();
+        assert!(contact.active_pairs > 0, "the test needs active contact");
+        // A direction on the simulation vertices that the contact surface depends on.
+        let region = sim.contact().unwrap().region_sim_vertices().to_vec();
+        let mut v = vec![0.0; state.x.len()];
+        for (k, &r) in region.iter().enumerate() {
+            for c in 0..3 {
+                v[3 * r as usize + c] = (((7 * k + 3 * c) % 11) as f64 - 5.0) / 5.0;
+            }
+        }
+        let shifted = |h: f64| {
+            let mut s = state.clone();
+            for (x, d) in s.x.iter_mut().zip(&v) {
+                *x += h * d;
+            }
+            s
+        };
+        // Small enough to stay on one side of every pair's d̂ and closest-feature boundary.
+        let h = 1e-4 * contact.min_distance;
+        let (_, gp) = sim.energy_gradient(&act, &bones, &shifted(h)).unwrap();
+        let (_, gm) = sim.energy_gradient(&act, &bones, &shifted(-h)).unwrap();
+        let hv = sim
+            .hessian_vector_product(&act, &bones, &state, &v)
+            .unwrap();
+        let fd: Vec<f64> = gp
+            .iter()
+            .zip(&gm)
+            .map(|(p, m)| (p - m) / (2.0 * h))
+            .collect();
+        let norm = |a: &[f64]| a.iter().map(|x| x * x).sum::<f64>().sqrt();
+        let diff: Vec<f64> = hv.iter().zip(&fd).map(|(a, b)| a - b).collect();
+        let rel = norm(&diff) / norm(&fd);
+        assert!(rel < 1e-5, "H·v vs finite differences: {rel:e}");
+        // Without the barrier's Hessian the product would be off: the check can fail.
+        let mut plain = state.clone();
+        plain.contact_stiffness = None;
+        let hv_plain = sim
+            .hessian_vector_product(&act, &bones, &plain, &v)
+            .unwrap();
+        let off: Vec<f64> = hv_plain.iter().zip(&fd).map(|(a, b)| a - b).collect();
+        assert!(norm(&off) / norm(&fd) > 1e3 * rel);
+    }
+}
