@@ -1,4 +1,4 @@
-//! Micro-benchmarks of batched passes (`cargo run --release --example nn_bench`).
+//! Micro-benchmarks of batched passes (`cargo run --release -p facesim --example nn_bench`).
 
 use std::time::Instant;
 

@@ -268,10 +268,7 @@ impl EditorApp {
         let t = &mut self.timeline;
         ui.horizontal(|ui| {
             let playing = t.playing.is_some();
-            if ui
-                .button(if playing { "⏸ pause" } else { "▶ play" })
-                .clicked()
-            {
+            if ui.button(if playing { "pause" } else { "play" }).clicked() {
                 t.playing = if playing {
                     None
                 } else {
@@ -281,9 +278,9 @@ impl EditorApp {
             let recording = t.recording.is_some();
             if ui
                 .button(if recording {
-                    "⏹ stop recording"
+                    "stop recording"
                 } else {
-                    "⏺ record"
+                    "record"
                 })
                 .clicked()
             {
@@ -308,7 +305,8 @@ impl EditorApp {
             let end = t.track.duration().max(1.0);
             ui.add(egui::Slider::new(&mut t.time, 0.0..=end).text("s"));
             ui.label(format!("{} keys", t.track.keys.len()));
-            ui.text_edit_singleline(&mut t.path);
+            let label = ui.label("track file");
+            ui.text_edit_singleline(&mut t.path).labelled_by(label.id);
             if ui.button("save").clicked() {
                 t.message = match t.track.save(&PathBuf::from(&t.path)) {
                     Ok(()) => format!("saved {}", t.path),
@@ -402,7 +400,6 @@ impl EditorApp {
                 rect,
                 ViewportCallback {
                     scene: self.scene.clone(),
-                    scene_changed: changed,
                     camera,
                     size_px: [(rect.width() * ppp) as u32, (rect.height() * ppp) as u32],
                     background: [0.16, 0.17, 0.19],

@@ -1,7 +1,6 @@
 //! `facesim-editor`: the interactive editor (`cargo run --release` at the repository root),
 //! and `serve`, the headless session for remote editors and scripts.
 
-
 use std::net::TcpListener;
 use std::path::PathBuf;
 use std::sync::Arc;

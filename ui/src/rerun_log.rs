@@ -123,11 +123,7 @@ impl RerunLogger {
                     .with_vertex_colors(colors),
             )?;
         }
-        let strips: Vec<Vec<[f32; 3]>> = frame
-            .crosses
-            .iter()
-            .map(|a| vec![a.from, a.to])
-            .collect();
+        let strips: Vec<Vec<[f32; 3]>> = frame.crosses.iter().map(|a| vec![a.from, a.to]).collect();
         rec.log("face/crosses", &rerun::LineStrips3D::new(strips))?;
         let r = frame.jaw.rotation_matrix();
         let cols: [[f32; 3]; 3] =

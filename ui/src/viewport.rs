@@ -176,6 +176,8 @@ pub struct ViewportResources {
     /// (vertex buffer, index buffer, index count), (line buffer, line vertex count).
     mesh: Option<(wgpu::Buffer, wgpu::Buffer, u32)>,
     line_buffer: Option<(wgpu::Buffer, u32)>,
+    /// The scene now on the GPU (held, so its address cannot be reused by another).
+    uploaded_scene: Option<Arc<Scene>>,
 }
 
 struct Target {
@@ -358,6 +360,7 @@ impl ViewportResources {
             target: None,
             mesh: None,
             line_buffer: None,
+            uploaded_scene: None,
         }
     }
 
@@ -419,8 +422,6 @@ impl ViewportResources {
 /// One paint of the viewport.
 pub struct ViewportCallback {
     pub scene: Arc<Scene>,
-    /// Whether `scene` differs from the last one uploaded.
-    pub scene_changed: bool,
     pub camera: OrbitCamera,
     pub size_px: [u32; 2],
     pub background: [f64; 3],
@@ -452,7 +453,14 @@ impl egui_wgpu::CallbackTrait for ViewportCallback {
             light: [light.x, light.y, light.z, 0.0],
         };
         queue.write_buffer(&res.uniforms, 0, bytemuck::bytes_of(&u));
-        if self.scene_changed || res.mesh.is_none() {
+        // Upload when the scene is not the one on the GPU (UI passes may run without a paint
+        // in between, so a per-pass "changed" flag would miss updates).
+        if !res
+            .uploaded_scene
+            .as_ref()
+            .is_some_and(|s| Arc::ptr_eq(s, &self.scene))
+        {
+            res.uploaded_scene = Some(self.scene.clone());
             let s = &self.scene;
             res.mesh = (!s.indices.is_empty()).then(|| {
                 let v = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {

@@ -1,5 +1,5 @@
-//! Headless UI test: the editor on a real face (built from the rig) with a test-only
-//! actuation model; moving the jawOpen slider must change the simulated face and the pixels
+//! Headless UI test: the editor on the bundled sample (its template face and fitted actuation
+//! basis); moving the jawOpen slider must change the simulated face and the pixels
 //! the viewport draws. Renders in software (Mesa lavapipe through wgpu's Vulkan backend).
 
 use std::path::PathBuf;
@@ -8,44 +8,24 @@ use std::time::{Duration, Instant};
 
 use egui_kittest::Harness;
 use egui_kittest::kittest::Queryable;
-use facesim::drive::{Actuation, ActuationModel, Codes, DriveError};
-use facesim::model::{Lod, build_face};
-use facesim::rig::FaceRig;
-use facesim::rig::style::StyleCode;
 use facesim::session::{Session, SessionFace, SessionHandle};
-use facesim::sim::{Quality, RigidMotion, SymTensor};
+use facesim::sim::Quality;
 use facesim_ui::app::EditorApp;
-use nalgebra::Vector3;
 
-/// Test double: jawOpen rotates the jaw; the tissue is not actuated.
-struct JawOnly(usize);
-
-impl ActuationModel for JawOnly {
-    fn element_count(&self) -> usize {
-        self.0
-    }
-    fn actuate(&self, codes: &Codes) -> Result<Actuation, DriveError> {
-        codes.validate()?;
-        Ok(Actuation {
-            tensors: vec![SymTensor::IDENTITY; self.0],
-            jaw: RigidMotion {
-                rotation: Vector3::new(0.25 * codes.expression.get("jawOpen").unwrap(), 0.0, 0.0),
-                translation: Vector3::zeros(),
-            },
-        })
-    }
-}
-
-fn rig_dir() -> PathBuf {
-    std::env::var_os("FACESIM_RIG_DIR")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/ict-facekit"))
+fn sample() -> Vec<SessionFace> {
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("..")
+        .join(facesim::sample::SAMPLE_DIR);
+    facesim_ui::faces::load_sample(&dir).expect("the bundled sample")
 }
 
 fn wait_for(harness: &mut Harness<'_, EditorApp>, done: impl Fn(&EditorApp) -> bool) {
     let deadline = Instant::now() + Duration::from_secs(120);
     while !done(harness.state()) {
-        assert!(Instant::now() < deadline, "timed out waiting for the editor");
+        assert!(
+            Instant::now() < deadline,
+            "timed out waiting for the editor"
+        );
         std::thread::sleep(Duration::from_millis(20));
         harness.step();
     }
@@ -53,16 +33,8 @@ fn wait_for(harness: &mut Harness<'_, EditorApp>, done: impl Fn(&EditorApp) -> b
 
 #[test]
 fn moving_the_jaw_slider_changes_the_face_on_screen() {
-    let rig = FaceRig::load(&rig_dir()).expect("the ICT rig (FACESIM_RIG_DIR)");
-    let model = build_face(&rig, None, &Lod::Coarse.settings()).unwrap();
-    let face = SessionFace {
-        name: "neutral".into(),
-        identity: None,
-        default_style: StyleCode::NEUTRAL,
-        actuation: Arc::new(JawOnly(model.mesh.tets.len())),
-        model: Arc::new(model),
-    };
-    let session: Arc<dyn SessionHandle> = Arc::new(Session::new(vec![face], Quality::Interactive).unwrap());
+    let session: Arc<dyn SessionHandle> =
+        Arc::new(Session::new(sample(), Quality::Interactive).unwrap());
     let mut harness = Harness::builder()
         .with_size(egui::vec2(1200.0, 800.0))
         .wgpu()
@@ -98,5 +70,8 @@ fn moving_the_jaw_slider_changes_the_face_on_screen() {
         .zip(after.pixels())
         .filter(|(a, b)| a.0.iter().zip(b.0.iter()).any(|(x, y)| x.abs_diff(*y) > 24))
         .count();
-    assert!(changed > 2000, "the viewport must show the change ({changed} pixels differ)");
+    assert!(
+        changed > 2000,
+        "the viewport must show the change ({changed} pixels differ)"
+    );
 }

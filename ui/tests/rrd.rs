@@ -3,52 +3,18 @@
 //! vertex count, scalar values.
 
 use std::path::PathBuf;
-use std::sync::Arc;
 use std::time::Duration;
 
-use facesim::drive::{Actuation, ActuationModel, Codes, DriveError};
-use facesim::model::{Lod, build_face};
-use facesim::rig::style::StyleCode;
-use facesim::rig::{ExpressionCode, FaceRig};
-use facesim::session::{Request, Session, SessionFace};
-use facesim::sim::{Quality, RigidMotion, SymTensor};
+use facesim::rig::ExpressionCode;
+use facesim::session::{Request, Session};
+use facesim::sim::Quality;
 use facesim_ui::rerun_log::{RerunLogger, RerunTarget, entity_name};
-use nalgebra::Vector3;
-
-/// Test double: jawOpen rotates the jaw and contracts every element a little along x.
-struct Test(usize);
-
-impl ActuationModel for Test {
-    fn element_count(&self) -> usize {
-        self.0
-    }
-    fn actuate(&self, codes: &Codes) -> Result<Actuation, DriveError> {
-        let w = codes.expression.get("jawOpen").unwrap();
-        Ok(Actuation {
-            tensors: vec![SymTensor([1.0 - 0.1 * w, 1.0, 1.0, 0.0, 0.0, 0.0]); self.0],
-            jaw: RigidMotion {
-                rotation: Vector3::new(0.2 * w, 0.0, 0.0),
-                translation: Vector3::zeros(),
-            },
-        })
-    }
-}
 
 #[test]
 fn an_rrd_written_by_the_editor_reads_back_in_the_python_sdk() {
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..");
-    let rig_dir = std::env::var_os("FACESIM_RIG_DIR")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| root.join("../shared/data/ict-facekit"));
-    let model = build_face(&FaceRig::load(&rig_dir).unwrap(), None, &Lod::Coarse.settings()).unwrap();
-    let face = SessionFace {
-        name: "neutral".into(),
-        identity: None,
-        default_style: StyleCode::NEUTRAL,
-        actuation: Arc::new(Test(model.mesh.tets.len())),
-        model: Arc::new(model),
-    };
-    let session = Session::new(vec![face], Quality::Interactive).unwrap();
+    let faces = facesim_ui::faces::load_sample(&root.join(facesim::sample::SAMPLE_DIR)).unwrap();
+    let session = Session::new(faces, Quality::Interactive).unwrap();
     session.submit(Request::Refine(false)).unwrap();
     let dir = std::env::temp_dir().join(format!("facesim-rrd-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
@@ -58,7 +24,9 @@ fn an_rrd_written_by_the_editor_reads_back_in_the_python_sdk() {
     let (mut frames, mut residuals, mut heatmaps) = (Vec::new(), Vec::new(), Vec::new());
     for w in [0.0, 0.3, 0.6, 0.9] {
         let g = session
-            .submit(Request::Expression(ExpressionCode::single("jawOpen", w).unwrap()))
+            .submit(Request::Expression(
+                ExpressionCode::single("jawOpen", w).unwrap(),
+            ))
             .unwrap();
         let f = session.wait_generation(g, Duration::from_secs(60)).unwrap();
         assert!(f.error.is_none());
@@ -88,7 +56,11 @@ fn an_rrd_written_by_the_editor_reads_back_in_the_python_sdk() {
         .arg(&expected)
         .output()
         .expect("python3 (with rerun-sdk==0.36.3, see .ci/run)");
-    let text = format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
     assert!(out.status.success() && text.contains("ok"), "{text}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
