@@ -1,3 +1,4 @@
 //! Benchmarks run by `facesim bench`.
 pub mod contact;
+pub mod contact_sweep;
 pub mod solver;
