@@ -102,6 +102,11 @@ enum BenchTarget {
         /// Also write the results as JSON here.
         #[arg(long)]
         json: Option<PathBuf>,
+        /// Instead: solve this many seeded random expression codes (sliders in [-0.5, 1.5])
+        /// on the bundled sample's neutral face, contact on, and report failures,
+        /// intersections and the median frame time.
+        #[arg(long)]
+        sweep: Option<usize>,
     },
 }
 
@@ -123,10 +128,44 @@ fn main() -> Result<()> {
         Command::Bench {
             target:
                 BenchTarget::Contact {
+                    json,
+                    sweep: Some(count),
+                    ..
+                },
+        } => {
+            let sample = facesim::sample::Sample::load(facesim::sample::SAMPLE_DIR)
+                .context("loading the bundled sample (run from the repository root)")?;
+            let face = sample
+                .faces
+                .iter()
+                .find(|f| f.identity.is_none())
+                .context("the sample has no neutral face")?;
+            eprintln!(
+                "sweeping {count} random codes on {} (interactive, contact on)…",
+                face.name
+            );
+            let codes = facesim::bench::contact_sweep::random_codes(count, 1);
+            let report = facesim::bench::contact_sweep::sweep(
+                &face.model,
+                face.actuation.as_ref(),
+                &codes,
+                facesim::sim::Quality::Interactive,
+            )
+            .context("contact sweep")?;
+            println!("{report:#?}");
+            if let Some(path) = json {
+                std::fs::write(&path, serde_json::to_string_pretty(&report)?)
+                    .with_context(|| format!("writing {}", path.display()))?;
+            }
+        }
+        Command::Bench {
+            target:
+                BenchTarget::Contact {
                     model,
                     rig,
                     frames,
                     json,
+                    sweep: None,
                 },
         } => {
             let face = match model {

@@ -95,7 +95,10 @@ pub enum SampleError {
         face: usize,
     },
     #[error("building {name}: {source}")]
-    Build { name: String, source: BuildError },
+    Build {
+        name: String,
+        source: Box<BuildError>,
+    },
     #[error("fitting the actuation basis of {name}: {source}")]
     Basis { name: String, source: BasisError },
 }

@@ -1,4 +1,5 @@
 //! Benchmarks run by `facesim bench`.
 pub mod contact;
+pub mod contact_sweep;
 pub mod editor;
 pub mod solver;
