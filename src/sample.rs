@@ -214,7 +214,7 @@ pub fn build_faces(
         let model =
             build_face(rig, identity, &lod.settings()).map_err(|source| SampleError::Build {
                 name: name.clone(),
-                source,
+                source: Box::new(source),
             })?;
         let basis = ActuationBasis::fit(rig, &model, &|done, total, shape| {
             progress(&format!("fitting {name}: {done}/{total} {shape}"))
