@@ -333,7 +333,18 @@ pub fn build_face(
         if shell.mesh.vertex_count() == (shell.layers + 1) * used_count(&triangles) {
             (shell, positions, triangles, thickness, origin, pinned)
         } else {
-            let (t, kept) = compact(&triangles, positions.len());
+            // Keep the vertices' relative order: prisms split by vertex index, so a new order
+            // would split them differently from the extrusion that just succeeded (and fold).
+            let (_, mut kept) = compact(&triangles, positions.len());
+            kept.sort_unstable();
+            let mut index = vec![u32::MAX; positions.len()];
+            for (new, &old) in kept.iter().enumerate() {
+                index[old] = new as u32;
+            }
+            let t: Vec<[u32; 3]> = triangles
+                .iter()
+                .map(|t| t.map(|v| index[v as usize]))
+                .collect();
             let (p, d) = (gather(&positions, &kept), gather(&inward, &kept));
             let shell = extrude(&p, &t, &d, &gather(&thickness, &kept), settings.layers)?;
             (
