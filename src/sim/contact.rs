@@ -634,24 +634,18 @@ pub(crate) fn factor_triplets(
 
 #[cfg(test)]
 mod tests {
+    use super::ContactStats;
     use crate::contact::drive::{LipField, MouthPose};
     use crate::contact::face::{FaceContact, FaceContactSettings};
-    use crate::model::{Lod, build_face};
-    use crate::sim::Quality;
+    use crate::sim::{BonePose, Quality, SimState, Simulator, SymTensor};
 
-    /// The barrier is part of the energy that sensitivities differentiate: at a solved state
-    /// with active contact, `H·v` (elastic + exact barrier Hessian) matches central finite
-    /// differences of `∇E` (elastic + barrier gradient).
-    #[test]
-    fn barrier_hessian_and_gradient_match_finite_differences() {
-        let model = build_face(
-            crate::rig::test_support::rig(),
-            None,
-            &Lod::Coarse.settings(),
-        )
-        .unwrap();
-        let face = FaceContact::new(&model, &FaceContactSettings::default()).unwrap();
-        let field = LipField::new(&model, &face, 1.5);
+    /// The coarse neutral with contact, solved with the lips pressed and pursed so that
+    /// contact is active: the simulator, the solved state, the actuations, the bones and the
+    /// contact stats.
+    fn pressed_lips() -> (Simulator, SimState, Vec<SymTensor>, BonePose, ContactStats) {
+        let model = crate::model::test_support::coarse_face(None);
+        let face = FaceContact::new(model, &FaceContactSettings::default()).unwrap();
+        let field = LipField::new(model, &face, 1.5);
         let mut sim = model.simulator().unwrap();
         sim.set_contact(face).unwrap();
         let pose = MouthPose {
@@ -666,6 +660,15 @@ mod tests {
             .unwrap();
         let contact = stats.contact.unwrap();
         assert!(contact.active_pairs > 0, "the test needs active contact");
+        (sim, state, act, bones, contact)
+    }
+
+    /// The barrier is part of the energy that sensitivities differentiate: at a solved state
+    /// with active contact, `H·v` (elastic + exact barrier Hessian) matches central finite
+    /// differences of `∇E` (elastic + barrier gradient).
+    #[test]
+    fn barrier_hessian_and_gradient_match_finite_differences() {
+        let (sim, state, act, bones, contact) = pressed_lips();
         // A direction on the simulation vertices that the contact surface depends on.
         let region = sim.contact().unwrap().region_sim_vertices().to_vec();
         let mut v = vec![0.0; state.x.len()];
@@ -713,28 +716,7 @@ mod tests {
     /// gradient that disagreed with its value (κ, mollifier, embedding) would fail.
     #[test]
     fn energy_gradient_with_contact_matches_finite_differences_of_the_energy() {
-        let model = build_face(
-            crate::rig::test_support::rig(),
-            None,
-            &Lod::Coarse.settings(),
-        )
-        .unwrap();
-        let face = FaceContact::new(&model, &FaceContactSettings::default()).unwrap();
-        let field = LipField::new(&model, &face, 1.5);
-        let mut sim = model.simulator().unwrap();
-        sim.set_contact(face).unwrap();
-        let pose = MouthPose {
-            press: 1.0,
-            purse: 0.5,
-            ..MouthPose::default()
-        };
-        let (act, bones) = (field.actuations(&pose), pose.bones());
-        let mut state = sim.rest_state();
-        let stats = sim
-            .solve(&act, &bones, &mut state, &Quality::Interactive.settings())
-            .unwrap();
-        let contact = stats.contact.unwrap();
-        assert!(contact.active_pairs > 0, "the test needs active contact");
+        let (sim, state, act, bones, contact) = pressed_lips();
         let region = sim.contact().unwrap().region_sim_vertices().to_vec();
         let direction = |a: usize, b: usize| {
             let mut v = vec![0.0; state.x.len()];
