@@ -13,6 +13,7 @@ pub mod geometry;
 pub mod mapping;
 pub mod model;
 pub mod nn;
+pub mod plot;
 pub mod rig;
 pub mod sample;
 pub mod scene;

@@ -6,6 +6,7 @@ use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
 
 mod cli_mapping;
+mod cli_tradeoff;
 
 #[derive(Parser)]
 #[command(
@@ -88,6 +89,10 @@ enum BenchTarget {
         #[arg(long)]
         json: Option<PathBuf>,
     },
+    /// The speed-for-accuracy trade: every mesh resolution × quality preset × contact
+    /// setting on one performance, against a converged reference on the finest mesh
+    /// (table, JSON and a PNG plot).
+    Tradeoff(cli_tradeoff::TradeoffArgs),
     /// Contact on a face: per-frame time with contact on and off at each quality preset,
     /// time in broad phase, barrier and CCD, low-rank update against refactoring.
     Contact {
@@ -191,6 +196,9 @@ fn main() -> Result<()> {
                     .with_context(|| format!("writing {}", path.display()))?;
             }
         }
+        Command::Bench {
+            target: BenchTarget::Tradeoff(args),
+        } => cli_tradeoff::bench_tradeoff(&args)?,
         Command::Bench {
             target:
                 BenchTarget::Editor {

@@ -5,6 +5,7 @@
 //! files), per face a model (`.face`), its actuation basis (`.basis`) and, once trained, its
 //! mapping into the canonical face (`.mapping`), and the rig's MIT notice.
 
+use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
@@ -12,11 +13,13 @@ use serde::{Deserialize, Serialize};
 
 use crate::drive::ActuationModel;
 use crate::drive::basis::{ActuationBasis, BasisError};
+use crate::mapping::stats::{HeatmapKind, vertex_values};
 use crate::mapping::{Mapping, MappingError};
 use crate::model::file::FileError;
 use crate::model::{BuildError, FaceModel, Lod, build_face};
 use crate::rig::style::identity_style;
 use crate::rig::{FaceRig, StyleCode};
+use crate::session::heatmap::{FieldSource, Legend, PerFaceField, builtin_sources};
 
 /// Where the bundled sample lives, relative to the repository root.
 pub const SAMPLE_DIR: &str = "sample_models/ict";
@@ -163,6 +166,71 @@ impl Sample {
                 actuation: f.actuation.clone(),
             })
             .collect()
+    }
+
+    /// The session's heatmaps plus φ's statistics per render vertex (det ∂φ/∂x, σmax/σmin,
+    /// vertex error against the canonical face), computed once at the rest shape; one legend
+    /// per statistic across the faces, so their colours compare.
+    pub fn field_sources(&self) -> Result<Vec<Box<dyn FieldSource>>, MappingError> {
+        let mut sources = builtin_sources();
+        let Some(canonical) = self.faces.iter().find(|f| f.identity.is_none()) else {
+            return Ok(sources);
+        };
+        for kind in HeatmapKind::ALL {
+            let mut values = HashMap::new();
+            for f in &self.faces {
+                if let Some(mapping) = &f.mapping {
+                    let v = vertex_values(&f.model, &canonical.model, mapping, kind)?;
+                    values.insert(f.name.clone(), v.iter().map(|&x| x as f32).collect());
+                }
+            }
+            let all = || values.values().flatten().copied();
+            let (name, unit, fallback, legend) = match kind {
+                HeatmapKind::Determinant => {
+                    let dev = all().map(|v: f32| (v - 1.0).abs()).fold(0.02, f32::max);
+                    let legend = Legend {
+                        min: 1.0 - dev,
+                        max: 1.0 + dev,
+                        center: Some(1.0),
+                    };
+                    ("phi det", "", 1.0, legend)
+                }
+                HeatmapKind::Condition => {
+                    let max = all().fold(1.02, f32::max);
+                    (
+                        "phi sigma max/min",
+                        "",
+                        1.0,
+                        Legend {
+                            min: 1.0,
+                            max,
+                            center: None,
+                        },
+                    )
+                }
+                HeatmapKind::VertexError => {
+                    let max = all().fold(0.01, f32::max);
+                    (
+                        "phi vertex error",
+                        "mm",
+                        0.0,
+                        Legend {
+                            min: 0.0,
+                            max,
+                            center: None,
+                        },
+                    )
+                }
+            };
+            sources.push(Box::new(PerFaceField {
+                name: name.into(),
+                unit: unit.into(),
+                legend,
+                fallback,
+                values,
+            }));
+        }
+        Ok(sources)
     }
 
     /// The face named `name`.
@@ -358,6 +426,55 @@ mod tests {
 
     fn repo_sample() -> PathBuf {
         PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(SAMPLE_DIR)
+    }
+
+    /// φ's heatmaps reach the session: the identities' values are the mapping statistics at
+    /// their render vertices (identity 0 is expanded by φ, median det > 1), the canonical
+    /// face shows φ = identity, and every value lies inside its legend's range.
+    #[test]
+    fn the_sample_serves_the_mapping_heatmaps_per_face() {
+        use crate::session::heatmap::FieldInput;
+        let sample = Sample::load(repo_sample()).unwrap();
+        let sources = sample.field_sources().unwrap();
+        let names: Vec<&str> = sources.iter().map(|s| s.name()).collect();
+        assert_eq!(
+            names,
+            [
+                "displacement",
+                "volume ratio det F",
+                "phi det",
+                "phi sigma max/min",
+                "phi vertex error"
+            ]
+        );
+        for face in &sample.faces {
+            let rest = &face.model.render.rest;
+            let input = FieldInput {
+                model: &face.model,
+                positions: rest,
+                mesh_x: &[],
+                volume_ratio: &[],
+            };
+            let det = sources[2].compute(&input);
+            let error = sources[4].compute(&input);
+            assert_eq!(det.values.len(), rest.len());
+            let mut sorted = det.values.clone();
+            sorted.sort_by(f32::total_cmp);
+            let median = sorted[sorted.len() / 2];
+            match face.identity {
+                None => {
+                    assert!(det.values.iter().all(|&v| v == 1.0));
+                    assert!(error.values.iter().all(|&v| v == 0.0));
+                }
+                Some(0) => assert!(median > 1.05, "identity 0 median det {median}"),
+                Some(_) => assert!((median - 1.0).abs() < 0.1, "{}: {median}", face.name),
+            }
+            for field in [&det, &error] {
+                assert!(field.values.iter().all(|v| v.is_finite()
+                    && *v >= field.legend.min - 1e-6
+                    && *v <= field.legend.max + 1e-6));
+            }
+        }
     }
 
     #[test]

@@ -3,3 +3,4 @@ pub mod contact;
 pub mod contact_sweep;
 pub mod editor;
 pub mod solver;
+pub mod tradeoff;

@@ -8,7 +8,6 @@
 //! → N_A evaluated at canonical positions and warped per element → solver. [`stats`] and
 //! [`plot`] give the Fig. 3 heatmaps and per-vertex values for the viewer.
 
-pub mod font;
 pub mod network;
 pub mod plot;
 pub mod samples;
@@ -39,8 +38,8 @@ pub enum MappingError {
         path: PathBuf,
         source: std::io::Error,
     },
-    #[error("writing a PNG: {0}")]
-    Png(String),
+    #[error(transparent)]
+    Plot(#[from] crate::plot::PlotError),
     #[error("training settings: {0}")]
     Config(String),
     #[error("the canonical face must be the rig's neutral, got {0}")]

@@ -3,108 +3,12 @@
 //! scaled to the panel's largest share, with a colour bar), axis ticks and titles drawn with
 //! the built-in bitmap font, written as PNG.
 
-use std::path::Path;
+use crate::plot::{BLACK, Canvas, SCALE, WHITE, font, viridis};
 
-use super::MappingError;
-use super::font;
-
-const SCALE: usize = 2;
 const CELL_W: usize = 7;
 const CELL_H: usize = 26;
 const PAD: usize = 14;
 const BAR_W: usize = 14;
-const WHITE: [u8; 3] = [255, 255, 255];
-const BLACK: [u8; 3] = [0, 0, 0];
-
-/// An RGB picture.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Canvas {
-    pub width: usize,
-    pub height: usize,
-    pub pixels: Vec<u8>,
-}
-
-impl Canvas {
-    pub fn new(width: usize, height: usize) -> Self {
-        Canvas {
-            width,
-            height,
-            pixels: vec![255; width * height * 3],
-        }
-    }
-
-    pub fn pixel(&self, x: usize, y: usize) -> [u8; 3] {
-        let i = 3 * (y * self.width + x);
-        [self.pixels[i], self.pixels[i + 1], self.pixels[i + 2]]
-    }
-
-    fn set(&mut self, x: usize, y: usize, c: [u8; 3]) {
-        if x < self.width && y < self.height {
-            let i = 3 * (y * self.width + x);
-            self.pixels[i..i + 3].copy_from_slice(&c);
-        }
-    }
-
-    fn fill(&mut self, x: usize, y: usize, w: usize, h: usize, c: [u8; 3]) {
-        for yy in y..y + h {
-            for xx in x..x + w {
-                self.set(xx, yy, c);
-            }
-        }
-    }
-
-    fn text(&mut self, s: &str, x: usize, y: usize) {
-        let mut lit = Vec::new();
-        font::draw(s, x, y, SCALE, |px, py| lit.push((px, py)));
-        for (px, py) in lit {
-            self.set(px, py, BLACK);
-        }
-    }
-
-    fn text_centered(&mut self, s: &str, cx: usize, y: usize) {
-        let w = font::text_width(s, SCALE);
-        self.text(s, cx.saturating_sub(w / 2), y);
-    }
-
-    /// Writes the picture as an 8-bit RGB PNG.
-    pub fn write_png(&self, path: &Path) -> Result<(), MappingError> {
-        let io = |e: std::io::Error| MappingError::Io {
-            path: path.to_path_buf(),
-            source: e,
-        };
-        let file = std::fs::File::create(path).map_err(io)?;
-        let mut enc = png::Encoder::new(
-            std::io::BufWriter::new(file),
-            self.width as u32,
-            self.height as u32,
-        );
-        enc.set_color(png::ColorType::Rgb);
-        enc.set_depth(png::BitDepth::Eight);
-        let png_err = |e: png::EncodingError| MappingError::Png(e.to_string());
-        let mut w = enc.write_header().map_err(png_err)?;
-        w.write_image_data(&self.pixels).map_err(png_err)?;
-        w.finish().map_err(png_err)
-    }
-}
-
-/// Viridis at t ∈ [0, 1] (piecewise linear through 5 of its colours).
-pub fn viridis(t: f64) -> [u8; 3] {
-    const STOPS: [[f64; 3]; 5] = [
-        [68.0, 1.0, 84.0],
-        [59.0, 82.0, 139.0],
-        [33.0, 145.0, 140.0],
-        [94.0, 201.0, 98.0],
-        [253.0, 231.0, 37.0],
-    ];
-    let t = if t.is_finite() {
-        t.clamp(0.0, 1.0)
-    } else {
-        0.0
-    } * 4.0;
-    let i = (t.floor() as usize).min(3);
-    let f = t - i as f64;
-    [0, 1, 2].map(|k| (STOPS[i][k] * (1.0 - f) + STOPS[i + 1][k] * f).round() as u8)
-}
 
 /// One panel: its title, the x range and the shares (rows × bins).
 #[derive(Clone, Debug, PartialEq)]

@@ -155,6 +155,36 @@ impl FieldSource for VolumeRatio {
     }
 }
 
+/// A field that does not change with the frame: one value per render vertex of each face,
+/// computed once (φ's statistics at the rest shape). A face it has no values for gets
+/// `fallback` everywhere (the canonical face's φ is the identity: det 1, no error).
+pub struct PerFaceField {
+    pub name: String,
+    pub unit: String,
+    pub legend: Legend,
+    pub fallback: f32,
+    pub values: std::collections::HashMap<String, Vec<f32>>,
+}
+
+impl FieldSource for PerFaceField {
+    fn name(&self) -> &str {
+        &self.name
+    }
+    fn compute(&self, input: &FieldInput<'_>) -> ScalarField {
+        let n = input.positions.len();
+        let values = match self.values.get(&input.model.name) {
+            Some(v) if v.len() == n => v.clone(),
+            _ => vec![self.fallback; n],
+        };
+        ScalarField {
+            name: self.name.clone(),
+            unit: self.unit.clone(),
+            values,
+            legend: self.legend,
+        }
+    }
+}
+
 /// The sources every session computes.
 pub fn builtin_sources() -> Vec<Box<dyn FieldSource>> {
     vec![Box::new(Displacement), Box::new(VolumeRatio)]

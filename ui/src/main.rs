@@ -7,8 +7,8 @@ use std::sync::Arc;
 
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
+use facesim::session::SessionHandle;
 use facesim::session::client::RemoteSession;
-use facesim::session::{Session, SessionHandle};
 use facesim::sim::Quality;
 
 use facesim_ui::rerun_log::{RerunLogger, RerunTarget};
@@ -75,8 +75,7 @@ fn main() -> Result<()> {
     };
     match cli.command {
         Some(Command::Serve { listen }) => {
-            let faces = faces::load_sample(&cli.sample)?;
-            let session = Arc::new(Session::new(faces, cli.quality)?);
+            let session = Arc::new(faces::open_sample_session(&cli.sample, cli.quality)?);
             if let Some(t) = &rerun {
                 attach_rerun(session.as_ref(), t)?;
             }
@@ -89,7 +88,7 @@ fn main() -> Result<()> {
         None => {
             let session: Arc<dyn SessionHandle> = match &cli.remote {
                 Some(addr) => Arc::new(RemoteSession::connect(addr)?),
-                None => Arc::new(Session::new(faces::load_sample(&cli.sample)?, cli.quality)?),
+                None => Arc::new(faces::open_sample_session(&cli.sample, cli.quality)?),
             };
             if let Some(t) = &rerun {
                 attach_rerun(session.as_ref(), t)?;

@@ -1,0 +1,122 @@
+//! `facesim bench tradeoff`: loads (or builds once and keeps) the neutral face at each level
+//! of detail with its actuation basis, runs `facesim::bench::tradeoff::measure` and writes
+//! the table, JSON and plot.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result};
+use facesim::bench::tradeoff::{TradeoffFace, measure, plot, table};
+use facesim::drive::basis::ActuationBasis;
+use facesim::model::{FaceModel, Lod, build_face};
+
+#[derive(clap::Args)]
+pub struct TradeoffArgs {
+    /// Levels of detail, coarsest first; the last one also solves the reference.
+    #[arg(long, value_delimiter = ',', default_values_t = [Lod::Coarse, Lod::Medium, Lod::Fine])]
+    lods: Vec<Lod>,
+    /// Frames of the performance.
+    #[arg(long, default_value_t = 9)]
+    frames: usize,
+    /// The coarse face comes from the sample.
+    #[arg(long, default_value = facesim::sample::SAMPLE_DIR)]
+    sample: PathBuf,
+    /// Finer faces are built from the rig once and kept here (`neutral-<lod>.face/.basis`).
+    #[arg(long, default_value = "target/facesim-lods")]
+    models: PathBuf,
+    #[arg(long, default_value = "../shared/data/ict-facekit")]
+    rig: PathBuf,
+    /// Where to write `tradeoff.md`, `tradeoff.json` and `tradeoff.png`.
+    #[arg(long, default_value = "tradeoff")]
+    out: PathBuf,
+}
+
+/// The neutral face at `lod` and its basis: from the sample (coarse), from `models`, or built
+/// from the rig and saved into `models`.
+fn face_at(args: &TradeoffArgs, lod: Lod) -> Result<(FaceModel, ActuationBasis)> {
+    let dir = if lod == facesim::sample::SAMPLE_LOD {
+        args.sample.as_path()
+    } else {
+        args.models.as_path()
+    };
+    let (face_path, basis_path) = (
+        dir.join(format!("neutral-{}.face", lod.name())),
+        dir.join(format!("neutral-{}.basis", lod.name())),
+    );
+    if face_path.exists() && basis_path.exists() {
+        let face = FaceModel::load(&face_path)
+            .with_context(|| format!("loading {}", face_path.display()))?;
+        let basis = ActuationBasis::load(&basis_path)
+            .with_context(|| format!("loading {}", basis_path.display()))?;
+        return Ok((face, basis));
+    }
+    let rig = crate::load_rig(&args.rig)?;
+    let bar = crate::spinner();
+    bar.set_message(format!("building the neutral face at {}", lod.name()));
+    let face = build_face(&rig, None, &lod.settings())
+        .with_context(|| format!("building the neutral face at {}", lod.name()))?;
+    let basis = ActuationBasis::fit(&rig, &face, &|done, total, shape| {
+        bar.set_message(format!("fitting {}: {done}/{total} {shape}", lod.name()))
+    })
+    .with_context(|| format!("fitting the basis at {}", lod.name()))?;
+    bar.finish_and_clear();
+    std::fs::create_dir_all(&args.models)
+        .with_context(|| format!("creating {}", args.models.display()))?;
+    face.save(&face_path)?;
+    basis.save(&basis_path)?;
+    Ok((face, basis))
+}
+
+pub fn bench_tradeoff(args: &TradeoffArgs) -> Result<()> {
+    anyhow::ensure!(args.frames >= 2, "--frames must be at least 2");
+    anyhow::ensure!(!args.lods.is_empty(), "--lods is empty");
+    let loaded = args
+        .lods
+        .iter()
+        .map(|&lod| face_at(args, lod))
+        .collect::<Result<Vec<_>>>()?;
+    let faces: Vec<TradeoffFace> = args
+        .lods
+        .iter()
+        .zip(&loaded)
+        .map(|(&lod, (model, basis))| TradeoffFace {
+            lod,
+            model,
+            actuation: basis,
+        })
+        .collect();
+    let bar = crate::spinner();
+    let (rows, reference) = measure(&faces, args.frames, &|m| bar.set_message(m.to_string()))
+        .context("measuring the trade")?;
+    bar.finish_and_clear();
+    anyhow::ensure!(
+        reference.errors.is_empty(),
+        "the reference failed on {} frame(s): {:?}",
+        reference.errors.len(),
+        reference.errors
+    );
+    let md = table(&rows);
+    print!("{md}");
+    write(&args.out, "tradeoff.md", md.as_bytes())?;
+    write(
+        &args.out,
+        "tradeoff.json",
+        serde_json::to_string_pretty(&rows)?.as_bytes(),
+    )?;
+    let png = args.out.join("tradeoff.png");
+    plot(&rows)
+        .map_err(anyhow::Error::msg)?
+        .write_png(&png)
+        .with_context(|| format!("writing {}", png.display()))?;
+    eprintln!(
+        "wrote {} (reference: {} iterations in all)",
+        args.out.display(),
+        reference.iterations.iter().sum::<usize>()
+    );
+    Ok(())
+}
+
+fn write(dir: &Path, name: &str, bytes: &[u8]) -> Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    let path = dir.join(name);
+    std::fs::write(&path, bytes).with_context(|| format!("writing {}", path.display()))
+}
