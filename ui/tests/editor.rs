@@ -75,3 +75,48 @@ fn moving_the_jaw_slider_changes_the_face_on_screen() {
         "the viewport must show the change ({changed} pixels differ)"
     );
 }
+
+/// φ's statistics reach the viewport: on identity 0 (which φ expands), choosing the
+/// "phi det" heatmap recolours the skin.
+#[test]
+fn the_mapping_heatmap_colours_the_identity_on_screen() {
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("..")
+        .join(facesim::sample::SAMPLE_DIR);
+    let session: Arc<dyn SessionHandle> =
+        Arc::new(facesim_ui::faces::open_sample_session(&dir, Quality::Interactive).unwrap());
+    session.submit(&[facesim::session::Request::Face(1)]).unwrap();
+    let mut harness = Harness::builder()
+        .with_size(egui::vec2(1200.0, 800.0))
+        .wgpu()
+        .build_eframe(|cc| EditorApp::new(cc, session.clone()));
+    wait_for(&mut harness, |app| {
+        app.last_frame
+            .as_ref()
+            .is_some_and(|f| f.face == 1 && f.heatmaps.iter().any(|h| h.name == "phi det"))
+    });
+    harness.run_steps(3);
+    let frame = harness.state().last_frame.clone().unwrap();
+    let index = frame
+        .heatmaps
+        .iter()
+        .position(|h| h.name == "phi det")
+        .unwrap();
+    let det = &frame.heatmaps[index];
+    let spread = det.values.iter().copied().fold(f32::MIN, f32::max)
+        - det.values.iter().copied().fold(f32::MAX, f32::min);
+    assert!(spread > 0.05, "det ∂φ/∂x varies over the face ({spread})");
+    let plain = harness.render().expect("software rendering");
+    harness.state_mut().toggles.heatmap = Some(index);
+    harness.run_steps(3);
+    let coloured = harness.render().expect("software rendering");
+    let changed = plain
+        .pixels()
+        .zip(coloured.pixels())
+        .filter(|(a, b)| a.0.iter().zip(b.0.iter()).any(|(x, y)| x.abs_diff(*y) > 24))
+        .count();
+    assert!(
+        changed > 5000,
+        "the heatmap must colour the skin ({changed} pixels differ)"
+    );
+}
