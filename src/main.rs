@@ -5,8 +5,8 @@ use std::path::PathBuf;
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
 
+mod cli_bench;
 mod cli_mapping;
-mod cli_tradeoff;
 
 #[derive(Parser)]
 #[command(
@@ -92,7 +92,10 @@ enum BenchTarget {
     /// The speed-for-accuracy trade: every mesh resolution × quality preset × contact
     /// setting on one performance, against a converged reference on the finest mesh
     /// (table, JSON and a PNG plot).
-    Tradeoff(cli_tradeoff::TradeoffArgs),
+    Tradeoff(cli_bench::TradeoffArgs),
+    /// Stability at the extremes: every slider 3× past its range, far styles, abrupt jumps
+    /// and a long random walk, as the editor's session solves them.
+    Extremes(cli_bench::ExtremesArgs),
     /// Contact on a face: per-frame time with contact on and off at each quality preset,
     /// time in broad phase, barrier and CCD, low-rank update against refactoring.
     Contact {
@@ -198,7 +201,10 @@ fn main() -> Result<()> {
         }
         Command::Bench {
             target: BenchTarget::Tradeoff(args),
-        } => cli_tradeoff::bench_tradeoff(&args)?,
+        } => cli_bench::bench_tradeoff(&args)?,
+        Command::Bench {
+            target: BenchTarget::Extremes(args),
+        } => cli_bench::bench_extremes(&args)?,
         Command::Bench {
             target:
                 BenchTarget::Editor {

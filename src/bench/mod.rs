@@ -2,5 +2,7 @@
 pub mod contact;
 pub mod contact_sweep;
 pub mod editor;
+pub mod extremes;
+pub mod sequence;
 pub mod solver;
 pub mod tradeoff;

@@ -8,8 +8,6 @@
 //! time per frame (median, p95), mean and max vertex error over the frames, frames whose
 //! render lips, mouth or teeth cross, and the largest change of tissue volume.
 
-use std::time::Instant;
-
 use nalgebra::Point3;
 use serde::{Deserialize, Serialize};
 
@@ -19,7 +17,9 @@ use crate::model::{FaceModel, Lod};
 use crate::plot::Canvas;
 use crate::plot::scatter::{Chart, PALETTE, Series, draw};
 use crate::rig::ExpressionCode;
-use crate::sim::{Quality, SimError, SimState, Simulator, SolveSettings};
+use crate::sim::{Quality, SimError, Simulator, SolveSettings};
+
+use super::sequence::solve_codes;
 
 /// A face at one level of detail and the model that drives it.
 pub struct TradeoffFace<'a> {
@@ -101,57 +101,47 @@ pub struct Run {
     pub max_volume_change: f64,
 }
 
-/// Solves `codes` in order on `face` (warm-started; a failed frame restarts from rest).
+/// Solves `codes` in order on `face` (warm-started; see [`solve_codes`]).
 pub fn run(
     face: &TradeoffFace,
     codes: &[Codes],
     settings: &SolveSettings,
 ) -> Result<Run, SimError> {
     let mut sim: Simulator = face.model.simulator()?;
-    let contact = FaceContact::new(face.model, &FaceContactSettings::default())
+    let checker = FaceContact::new(face.model, &FaceContactSettings::default())
         .map_err(|e| SimError::Setup(format!("contact surfaces: {e}")))?;
-    let checker = contact.clone();
     if settings.contact {
-        sim.set_contact(contact)?;
+        sim.set_contact(checker.clone())?;
     }
     let rest_volume: f64 = face.model.mesh.volumes().iter().sum();
-    let mut state: SimState = sim.rest_state();
     let mut out = Run::default();
     let mut y = vec![0.0; 3 * checker.vertex_count()];
-    for c in codes {
-        let start = Instant::now();
-        let solved = face
-            .actuation
-            .actuate(c)
-            .map_err(|e| e.to_string())
-            .and_then(|a| {
-                let bones = a.bones();
-                sim.solve(&a.tensors, &bones, &mut state, settings)
-                    .map(|stats| (stats, bones))
-                    .map_err(|e| e.to_string())
-            });
-        match solved {
-            Ok((stats, bones)) => {
-                let render = face.model.render_positions(state.flat_positions(), &bones);
-                out.ms.push(start.elapsed().as_secs_f64() * 1e3);
+    solve_codes(&sim, face.actuation, codes, settings, |frame, state| {
+        out.ms.push(frame.ms);
+        match &frame.outcome {
+            Ok(stats) if frame.finite => {
+                let x = state.flat_positions();
                 out.iterations.push(stats.iterations);
                 out.converged += usize::from(stats.converged());
-                checker.positions(state.flat_positions(), &bones, &mut y);
+                checker.positions(x, &frame.bones, &mut y);
                 out.crossing_frames += usize::from(!checker.new_crossings(&y).is_empty());
-                let volume = tissue_volume(&face.model.mesh.tets, state.flat_positions());
+                let volume = tissue_volume(&face.model.mesh.tets, x);
                 out.max_volume_change = out
                     .max_volume_change
                     .max((volume / rest_volume - 1.0).abs());
-                out.frames.push(Some(render));
+                out.frames
+                    .push(Some(face.model.render_positions(x, &frame.bones)));
+            }
+            Ok(_) => {
+                out.errors.push("non-finite positions".into());
+                out.frames.push(None);
             }
             Err(e) => {
-                out.ms.push(start.elapsed().as_secs_f64() * 1e3);
-                out.errors.push(e);
+                out.errors.push(e.clone());
                 out.frames.push(None);
-                state = sim.rest_state();
             }
         }
-    }
+    });
     Ok(out)
 }
 

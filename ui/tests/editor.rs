@@ -85,7 +85,9 @@ fn the_mapping_heatmap_colours_the_identity_on_screen() {
         .join(facesim::sample::SAMPLE_DIR);
     let session: Arc<dyn SessionHandle> =
         Arc::new(facesim_ui::faces::open_sample_session(&dir, Quality::Interactive).unwrap());
-    session.submit(&[facesim::session::Request::Face(1)]).unwrap();
+    session
+        .submit(&[facesim::session::Request::Face(1)])
+        .unwrap();
     let mut harness = Harness::builder()
         .with_size(egui::vec2(1200.0, 800.0))
         .wgpu()

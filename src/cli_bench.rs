@@ -1,6 +1,6 @@
-//! `facesim bench tradeoff`: loads (or builds once and keeps) the neutral face at each level
-//! of detail with its actuation basis, runs `facesim::bench::tradeoff::measure` and writes
-//! the table, JSON and plot.
+//! `facesim bench tradeoff` (loads, or builds once and keeps, the neutral face at each level
+//! of detail with its actuation basis; writes the table, JSON and plot) and
+//! `facesim bench extremes`.
 
 use std::path::{Path, PathBuf};
 
@@ -119,4 +119,72 @@ fn write(dir: &Path, name: &str, bytes: &[u8]) -> Result<()> {
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     let path = dir.join(name);
     std::fs::write(&path, bytes).with_context(|| format!("writing {}", path.display()))
+}
+
+#[derive(clap::Args)]
+pub struct ExtremesArgs {
+    #[arg(long, default_value = facesim::sample::SAMPLE_DIR)]
+    sample: PathBuf,
+    /// The sample face to drive.
+    #[arg(long, default_value = "neutral")]
+    face: String,
+    /// Frames of the long random walk.
+    #[arg(long, default_value_t = 10_000)]
+    long: usize,
+    #[arg(long, default_value_t = facesim::sim::Quality::Interactive)]
+    quality: facesim::sim::Quality,
+    /// Lip and teeth contact in the solve.
+    #[arg(long, default_value_t = true, action = clap::ArgAction::Set)]
+    contact: bool,
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Also write the reports as JSON here.
+    #[arg(long)]
+    json: Option<PathBuf>,
+}
+
+pub fn bench_extremes(args: &ExtremesArgs) -> Result<()> {
+    use facesim::bench::extremes;
+    let sample = facesim::sample::Sample::load(&args.sample)
+        .with_context(|| format!("loading the sample from {}", args.sample.display()))?;
+    let face = sample
+        .face(&args.face)
+        .with_context(|| format!("the sample has no face '{}'", args.face))?;
+    let settings = facesim::sim::SolveSettings {
+        contact: args.contact,
+        ..args.quality.settings()
+    };
+    let bar = indicatif::ProgressBar::new(0);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} eta {eta}")
+            .expect("valid template"),
+    );
+    let reports = extremes::run(
+        &face.model,
+        face.actuation.as_ref(),
+        &extremes::cases(args.long, args.seed),
+        &settings,
+        &|name, done, total| {
+            bar.set_message(name.to_string());
+            bar.set_length(total as u64);
+            bar.set_position(done as u64);
+        },
+    )
+    .context("the extreme sweep")?;
+    bar.finish_and_clear();
+    print!("{}", extremes::table(&reports));
+    for r in &reports {
+        for e in &r.examples {
+            println!("{}: {e}", r.name);
+        }
+    }
+    if let Some(path) = &args.json {
+        std::fs::write(path, serde_json::to_string_pretty(&reports)?)
+            .with_context(|| format!("writing {}", path.display()))?;
+    }
+    anyhow::ensure!(
+        reports.iter().all(|r| r.non_finite == 0),
+        "a frame had non-finite positions"
+    );
+    Ok(())
 }
