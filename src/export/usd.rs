@@ -26,16 +26,46 @@ pub struct UsdWriter {
     line: String,
 }
 
+/// Appends `v` rounded to `decimals` places (`-12.34560`). Hand-rolled because float
+/// formatting was most of the export's time: this is the bulk of a `.usda`.
+fn push_fixed(s: &mut String, v: f32, decimals: usize) {
+    const POW10: [f64; 10] = [1.0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9];
+    let scaled = (v as f64 * POW10[decimals]).round_ties_even();
+    if !scaled.is_finite() || scaled.abs() >= 9e15 {
+        // Not reached for frames (finite, centimetres); kept correct anyway.
+        use std::fmt::Write as _;
+        let _ = write!(s, "{v:.decimals$}");
+        return;
+    }
+    let mut n = scaled.abs() as u64;
+    if scaled < 0.0 {
+        s.push('-');
+    }
+    let mut digits = [0u8; 24];
+    let mut len = 0;
+    while len <= decimals + usize::from(decimals > 0) || n > 0 {
+        if len == decimals && decimals > 0 {
+            digits[len] = b'.';
+            len += 1;
+            continue;
+        }
+        digits[len] = b'0' + (n % 10) as u8;
+        n /= 10;
+        len += 1;
+    }
+    for &d in digits[..len].iter().rev() {
+        s.push(d as char);
+    }
+}
+
 fn push_vec(s: &mut String, v: &[f32; 3], decimals: usize) {
-    use std::fmt::Write as _;
-    let _ = write!(
-        s,
-        "({:.d$}, {:.d$}, {:.d$})",
-        v[0],
-        v[1],
-        v[2],
-        d = decimals
-    );
+    s.push('(');
+    push_fixed(s, v[0], decimals);
+    s.push_str(", ");
+    push_fixed(s, v[1], decimals);
+    s.push_str(", ");
+    push_fixed(s, v[2], decimals);
+    s.push(')');
 }
 
 fn array(values: &[[f32; 3]], decimals: usize) -> String {
@@ -176,6 +206,29 @@ impl FrameSink for UsdWriter {
 mod tests {
     use super::*;
     use crate::export::test_mesh;
+
+    #[test]
+    fn fixed_point_numbers_match_rust_formatting() {
+        for v in [
+            0.0f32, 1.0, -1.0, 0.5, -0.000004, 0.000006, 12.345678, -7.89, 123456.79, 0.1,
+        ] {
+            for d in [0, 4, 5] {
+                let mut s = String::new();
+                push_fixed(&mut s, v, d);
+                let expected = format!("{v:.d$}");
+                let expected = if expected
+                    .trim_start_matches('-')
+                    .bytes()
+                    .all(|b| b == b'0' || b == b'.')
+                {
+                    expected.trim_start_matches('-').to_string()
+                } else {
+                    expected
+                };
+                assert_eq!(s, expected, "{v} at {d} decimals");
+            }
+        }
+    }
 
     #[test]
     fn a_layer_has_topology_and_one_time_sample_per_frame() {
