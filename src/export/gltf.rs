@@ -251,7 +251,7 @@ impl GltfWriter {
         let layout = Layout::new(self.mesh.triangles.len(), self.mesh.vertex_count(), n);
         let mut json = serde_json::to_vec(&self.json(&layout)).expect("JSON serializes");
         self.scratch.close()?;
-        while json.len() % 4 != 0 {
+        while !json.len().is_multiple_of(4) {
             json.push(b' ');
         }
         let total = 12 + 8 + json.len() as u64 + 8 + layout.total;

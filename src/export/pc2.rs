@@ -76,8 +76,11 @@ impl Header {
     }
 }
 
+/// One sample's points.
+pub type Samples = Vec<[f32; 3]>;
+
 /// Reads a PC2 file: its header and all samples (checks that the size matches the header).
-pub fn read(path: &Path) -> Result<(Header, Vec<Vec<[f32; 3]>>), String> {
+pub fn read(path: &Path) -> Result<(Header, Vec<Samples>), String> {
     let mut f = std::fs::File::open(path).map_err(|e| format!("{}: {e}", path.display()))?;
     let mut hb = [0u8; 32];
     f.read_exact(&mut hb)

@@ -14,8 +14,10 @@ use crate::sim::Quality;
 fn short_track() -> Track {
     let mut t = Track::new("neutral");
     t.set_key(0.0, Default::default());
-    let mut open = crate::drive::Codes::default();
-    open.expression = ExpressionCode::single("jawOpen", 0.4).unwrap();
+    let open = crate::drive::Codes {
+        expression: ExpressionCode::single("jawOpen", 0.4).unwrap(),
+        ..Default::default()
+    };
     t.set_key(0.3, open);
     t
 }
