@@ -52,6 +52,18 @@ enum Command {
     /// Mapping-function statistics (Fig. 3 heatmaps, CSVs, per-vertex values) and, with
     /// `--warp`, the warp-versus-naive comparison.
     Stats(cli_mapping::StatsArgs),
+    /// Simulate an animation track and write it as USD, PC2, an OBJ sequence or glTF (README,
+    /// "Export"; `.rrd` from the editor binary: `cargo run --release -- export …`).
+    Export {
+        #[command(flatten)]
+        args: facesim::export::cli::ExportArgs,
+        /// The sample folder the faces come from.
+        #[arg(long, default_value = facesim::sample::SAMPLE_DIR)]
+        sample: PathBuf,
+        /// Solver preset for every frame: interactive, preview or final.
+        #[arg(long, default_value = "interactive")]
+        quality: facesim::sim::Quality,
+    },
     /// Measure performance (results are medians of repeated runs).
     Bench {
         #[command(subcommand)]
@@ -133,6 +145,13 @@ fn main() -> Result<()> {
         } => sample(&rig, &out, &identities)?,
         Command::TrainMapping(args) => cli_mapping::train_mapping(&args)?,
         Command::Stats(args) => cli_mapping::stats(&args)?,
+        Command::Export {
+            args,
+            sample,
+            quality,
+        } => {
+            facesim::export::cli::run(&args, &sample, quality, None)?;
+        }
         Command::Bench {
             target:
                 BenchTarget::Contact {

@@ -2,6 +2,7 @@
 //! drives lives in the core library (`facesim::session`).
 
 pub mod app;
+pub mod export_rrd;
 pub mod faces;
 pub mod rerun_log;
 pub mod scene;

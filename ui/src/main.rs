@@ -44,6 +44,9 @@ enum Command {
         #[arg(long)]
         listen: String,
     },
+    /// Simulate an animation track and write it out: the core formats (usd, pc2, obj, gltf)
+    /// plus rrd, a rerun recording (README, "Export"). `--sample` and `--quality` apply.
+    Export(facesim::export::cli::ExportArgs),
 }
 
 /// Logs every frame of `session` to rerun.
@@ -74,6 +77,15 @@ fn main() -> Result<()> {
         ),
     };
     match cli.command {
+        Some(Command::Export(args)) => {
+            facesim::export::cli::run(
+                &args,
+                &cli.sample,
+                cli.quality,
+                Some(&facesim_ui::export_rrd::RrdFactory),
+            )?;
+            Ok(())
+        }
         Some(Command::Serve { listen }) => {
             let session = Arc::new(faces::open_sample_session(&cli.sample, cli.quality)?);
             if let Some(t) = &rerun {

@@ -72,8 +72,21 @@ impl RerunLogger {
         })
     }
 
-    /// Logs one frame (and the face's static triangles when the face changes).
+    /// Logs one frame (and the face's static triangles when the face changes) on the `frame`
+    /// timeline at the session's frame index.
     pub fn log(&self, frame: &Frame, topology: &FaceTopology) -> Result<()> {
+        self.log_at(frame, topology, frame.index as i64, None)
+    }
+
+    /// As [`RerunLogger::log`], at frame number `sequence` and, with `seconds`, also at that
+    /// time on the `time` timeline (exports: frame numbers 0, 1, … and the track's time).
+    pub fn log_at(
+        &self,
+        frame: &Frame,
+        topology: &FaceTopology,
+        sequence: i64,
+        seconds: Option<f64>,
+    ) -> Result<()> {
         let rec = &self.rec;
         let tris: Vec<TriangleIndices> = topology
             .triangles
@@ -96,7 +109,10 @@ impl RerunLogger {
                 *face = Some(frame.face);
             }
         }
-        rec.set_time_sequence("frame", frame.index as i64);
+        rec.set_time_sequence("frame", sequence);
+        if let Some(t) = seconds {
+            rec.set_duration_secs("time", t);
+        }
         let positions: Vec<Position3D> = frame.positions.iter().map(pos).collect();
         let normals: Vec<Vector3D> = frame
             .normals

@@ -1,0 +1,126 @@
+//! The `export` subcommand's arguments and runner, shared by the `facesim` CLI and the editor
+//! binary (which adds `rrd` through a [`SinkFactory`]); progress is an indicatif bar with ETA.
+
+use std::path::{Path, PathBuf};
+
+use super::{ExportError, ExportJob, ExportSummary, Format, SinkFactory, export};
+use crate::sample::Sample;
+use crate::session::SessionFace;
+use crate::session::track::Track;
+use crate::sim::Quality;
+
+/// `export TRACK.json --out DIR --format usd,pc2,obj,gltf [--fps 30] [--face NAME|INDEX]`
+/// (`--sample` and `--quality` come from the binary).
+#[derive(Clone, Debug, clap::Args)]
+pub struct ExportArgs {
+    /// The animation track (facesim-track JSON, e.g. saved by the editor's timeline).
+    pub track: PathBuf,
+    /// Output folder (created if missing); files are named after the track.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Formats: usd (.usda), pc2 (+ topology .obj), obj (one OBJ per frame), gltf (.glb),
+    /// rrd (editor binary only).
+    #[arg(long, value_delimiter = ',', required = true)]
+    pub format: Vec<Format>,
+    /// Frames per second.
+    #[arg(long, default_value_t = 30.0)]
+    pub fps: f64,
+    /// The sample face to animate, by name or index (default: the face the track names).
+    #[arg(long)]
+    pub face: Option<String>,
+}
+
+/// Picks the face: `--face` by name or index, else the track's face.
+pub fn choose_face(
+    faces: Vec<SessionFace>,
+    wanted: Option<&str>,
+    track: &Track,
+) -> Result<SessionFace, ExportError> {
+    let names: Vec<String> = faces.iter().map(|f| f.name.clone()).collect();
+    let key = wanted.unwrap_or(&track.face);
+    let index = names
+        .iter()
+        .position(|n| n == key)
+        .or_else(|| key.parse::<usize>().ok().filter(|&i| i < faces.len()));
+    match index {
+        Some(i) => Ok(faces.into_iter().nth(i).expect("index checked")),
+        None => Err(ExportError::Face(format!(
+            "the sample has no face '{key}'{} (faces: {}; indices 0–{})",
+            if wanted.is_none() {
+                " (the track's face; choose one with --face)"
+            } else {
+                ""
+            },
+            names.join(", "),
+            names.len().saturating_sub(1)
+        ))),
+    }
+}
+
+/// Runs an export as the CLI does: loads the sample and track, shows a progress bar, prints
+/// a summary.
+pub fn run(
+    args: &ExportArgs,
+    sample_dir: &Path,
+    quality: Quality,
+    extra: Option<&dyn SinkFactory>,
+) -> anyhow::Result<ExportSummary> {
+    use anyhow::Context as _;
+    if args.format.contains(&Format::Rrd) && extra.is_none() {
+        return Err(ExportError::RrdNeedsEditor.into());
+    }
+    let track = Track::load(&args.track)
+        .with_context(|| format!("loading the track {}", args.track.display()))?;
+    let sample = Sample::load(sample_dir)
+        .with_context(|| format!("loading the sample from {}", sample_dir.display()))?;
+    let face = choose_face(sample.session_faces(), args.face.as_deref(), &track)?;
+    let name = args
+        .track
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .filter(|s| !s.is_empty())
+        .unwrap_or_else(|| "track".into());
+    let job = ExportJob {
+        name,
+        out_dir: args.out.clone(),
+        formats: args.format.clone(),
+        fps: args.fps,
+        quality,
+    };
+    let frames = super::frame_count(track.duration(), args.fps);
+    eprintln!(
+        "exporting {} ({:.2} s, {frames} frames at {} fps) on {} at the {quality} preset → {}",
+        args.track.display(),
+        track.duration(),
+        args.fps,
+        face.name,
+        args.out.display()
+    );
+    let bar = indicatif::ProgressBar::new(frames as u64);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template(
+            "{bar:40} {pos}/{len} frames [{elapsed_precise}, ETA {eta_precise}] {per_sec}",
+        )
+        .expect("valid template"),
+    );
+    let summary = export(face, &track, &job, extra, &mut |done, _| {
+        bar.set_position(done as u64)
+    });
+    bar.finish_and_clear();
+    let summary = summary.context("export failed (no output was written under its final name)")?;
+    eprintln!(
+        "{} frames in {:.1} s (solver {:.1} s, median {} iterations, {} at the iteration cap); \
+         {} vertices, {} triangles",
+        summary.frames,
+        summary.wall.as_secs_f64(),
+        summary.solve.as_secs_f64(),
+        summary.median_iterations,
+        summary.capped,
+        summary.vertices,
+        summary.triangles
+    );
+    for (path, bytes) in &summary.outputs {
+        println!("{:>10.1} MB  {}", *bytes as f64 / 1e6, path.display());
+    }
+    Ok(summary)
+}

@@ -1,0 +1,257 @@
+//! The export loop: a track's codes at every frame time → the editor's [`Session`] (actuation,
+//! warm-started solve at the chosen preset, render positions and normals) → every format's
+//! writer; then the outputs are renamed into place.
+
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use super::staging::Staging;
+use super::{ExportError, ExportMesh, Format, FrameSink, frame_count};
+use crate::session::face::FaceTopology;
+use crate::session::track::Track;
+use crate::session::{Display, Request, Session, SessionFace};
+use crate::sim::{Quality, Termination};
+
+/// What to export.
+#[derive(Clone, Debug)]
+pub struct ExportJob {
+    /// The output base name (files are `NAME.usda`, `NAME.pc2`, …).
+    pub name: String,
+    pub out_dir: PathBuf,
+    pub formats: Vec<Format>,
+    pub fps: f64,
+    pub quality: Quality,
+}
+
+/// Makes the writer of a format the core library does not write (the editor's `.rrd`).
+pub trait SinkFactory {
+    /// `temp` is where to write; the export renames it into place at the end.
+    fn create(
+        &self,
+        format: Format,
+        temp: &Path,
+        topology: &FaceTopology,
+        frames: usize,
+        fps: f64,
+    ) -> Result<Option<Box<dyn FrameSink>>, ExportError>;
+}
+
+/// What an export did.
+#[derive(Clone, Debug)]
+pub struct ExportSummary {
+    pub face: String,
+    pub frames: usize,
+    pub vertices: usize,
+    pub triangles: usize,
+    /// Final paths and sizes in bytes (a folder's size is the sum of its files).
+    pub outputs: Vec<(PathBuf, u64)>,
+    pub wall: Duration,
+    /// Time in the solver, summed over frames.
+    pub solve: Duration,
+    /// Frames that hit the preset's iteration cap before its tolerance.
+    pub capped: usize,
+    pub median_iterations: usize,
+}
+
+/// Progress after each frame: `(frames done, frames in all)`.
+pub type Progress<'a> = &'a mut dyn FnMut(usize, usize);
+
+fn size_of(path: &Path) -> u64 {
+    if path.is_dir() {
+        std::fs::read_dir(path)
+            .map(|d| d.flatten().map(|e| size_of(&e.path())).sum())
+            .unwrap_or(0)
+    } else {
+        std::fs::metadata(path).map_or(0, |m| m.len())
+    }
+}
+
+/// Simulates `track` on `face` and writes `job`'s formats (module doc). Nothing appears under
+/// a final name unless every frame solved and every writer finished.
+pub fn export(
+    face: SessionFace,
+    track: &Track,
+    job: &ExportJob,
+    extra: Option<&dyn SinkFactory>,
+    progress: Progress<'_>,
+) -> Result<ExportSummary, ExportError> {
+    if job.formats.is_empty() {
+        return Err(ExportError::NoFormats);
+    }
+    if !(job.fps > 0.0 && job.fps <= 1000.0) {
+        return Err(ExportError::BadFps(job.fps));
+    }
+    if track.keys.is_empty() {
+        return Err(ExportError::EmptyTrack);
+    }
+    if job.formats.contains(&Format::Rrd) && extra.is_none() {
+        return Err(ExportError::RrdNeedsEditor);
+    }
+    let start = Instant::now();
+    let frames = frame_count(track.duration(), job.fps);
+    let mesh = ExportMesh::of(&face.model);
+    let topology = FaceTopology::of(&face.name, &face.model);
+    std::fs::create_dir_all(&job.out_dir).map_err(|e| ExportError::io(&job.out_dir, e))?;
+    let mut staging = Staging::default();
+    let result = (|| {
+        let sinks = open_sinks(
+            &mut staging,
+            job,
+            &mesh,
+            &topology,
+            frames,
+            extra,
+            &face.name,
+        )?;
+        run_frames(face.clone(), track, job, frames, sinks, progress)
+    })();
+    match result {
+        Ok((solve, capped, median_iterations)) => {
+            let outputs = staging.commit()?;
+            Ok(ExportSummary {
+                face: face.name,
+                frames,
+                vertices: mesh.vertex_count(),
+                triangles: mesh.triangles.len(),
+                outputs: outputs
+                    .into_iter()
+                    .map(|p| {
+                        let s = size_of(&p);
+                        (p, s)
+                    })
+                    .collect(),
+                wall: start.elapsed(),
+                solve,
+                capped,
+                median_iterations,
+            })
+        }
+        Err(e) => {
+            staging.abandon();
+            Err(e)
+        }
+    }
+}
+
+fn open_sinks(
+    staging: &mut Staging,
+    job: &ExportJob,
+    mesh: &ExportMesh,
+    topology: &FaceTopology,
+    frames: usize,
+    extra: Option<&dyn SinkFactory>,
+    face: &str,
+) -> Result<Vec<Box<dyn FrameSink>>, ExportError> {
+    let (dir, name) = (&job.out_dir, &job.name);
+    let comment = format!(
+        "facesim export of track '{name}' on face '{face}', {frames} frames at {} fps, {} preset",
+        job.fps, job.quality
+    );
+    let mut formats: Vec<Format> = Vec::new();
+    for f in &job.formats {
+        if !formats.contains(f) {
+            formats.push(*f);
+        }
+    }
+    let mut sinks: Vec<Box<dyn FrameSink>> = Vec::new();
+    for format in formats {
+        let sink: Box<dyn FrameSink> = match format {
+            Format::Usd => {
+                let target = dir.join(format!("{name}.usda"));
+                let normals = staging.scratch(&target, "normals")?;
+                let temp = staging.output(target)?;
+                Box::new(super::usd::UsdWriter::create(
+                    &temp, &normals, mesh, frames, job.fps, &comment,
+                )?)
+            }
+            Format::Pc2 => {
+                let cache = staging.output(dir.join(format!("{name}.pc2")))?;
+                let obj = staging.output(dir.join(format!("{name}.obj")))?;
+                Box::new(super::pc2::Pc2Sink::create(&cache, &obj, mesh, frames)?)
+            }
+            Format::Obj => {
+                let temp = staging.output(dir.join(format!("{name}_obj")))?;
+                Box::new(super::obj::ObjSequenceSink::create(
+                    &temp, name, mesh, frames, job.fps,
+                )?)
+            }
+            Format::Gltf => {
+                let target = dir.join(format!("{name}.glb"));
+                let targets = staging.scratch(&target, "targets")?;
+                let temp = staging.output(target)?;
+                Box::new(super::gltf::GltfWriter::create(
+                    &temp, &targets, mesh, frames, job.fps, &comment,
+                )?)
+            }
+            Format::Rrd => {
+                let temp = staging.output(dir.join(format!("{name}.rrd")))?;
+                extra
+                    .and_then(|f| {
+                        f.create(format, &temp, topology, frames, job.fps)
+                            .transpose()
+                    })
+                    .ok_or(ExportError::RrdNeedsEditor)??
+            }
+        };
+        sinks.push(sink);
+    }
+    Ok(sinks)
+}
+
+/// Solves every frame in order through the session and hands it to the sinks.
+fn run_frames(
+    face: SessionFace,
+    track: &Track,
+    job: &ExportJob,
+    frames: usize,
+    mut sinks: Vec<Box<dyn FrameSink>>,
+    progress: Progress<'_>,
+) -> Result<(Duration, usize, usize), ExportError> {
+    let session = Session::new(vec![face], job.quality)?;
+    session.submit_all(&[
+        Request::Refine(false),
+        Request::Display(Display {
+            crosses: false,
+            heatmaps: false,
+        }),
+    ])?;
+    // A frame can take long at the final preset on a fine face; a stopped worker cannot.
+    let timeout = Duration::from_secs(3600);
+    let (mut solve, mut capped, mut iterations) = (Duration::ZERO, 0, Vec::with_capacity(frames));
+    let mut last_index = None;
+    for k in 0..frames {
+        let time = k as f64 / job.fps;
+        let codes = track.sample(time).expect("the track has keys");
+        let fail = |reason: String| ExportError::Frame {
+            frame: k,
+            time,
+            reason,
+        };
+        let generation = session
+            .submit(Request::Codes(codes))
+            .map_err(|e| fail(e.to_string()))?;
+        let frame = session
+            .wait_generation(generation, timeout)
+            .ok_or_else(|| fail("the session published no frame within an hour".into()))?;
+        if let Some(error) = &frame.error {
+            return Err(fail(error.clone()));
+        }
+        // Held codes (equal to the last frame's) publish no new frame: the same geometry.
+        if last_index != Some(frame.index) {
+            solve += Duration::from_secs_f64(frame.stats.solve_ms / 1e3);
+            capped += (frame.stats.termination == Termination::IterationCap) as usize;
+            iterations.push(frame.stats.iterations);
+        }
+        last_index = Some(frame.index);
+        for sink in &mut sinks {
+            sink.frame(k, &frame)?;
+        }
+        progress(k + 1, frames);
+    }
+    for sink in sinks {
+        sink.finish()?;
+    }
+    iterations.sort_unstable();
+    let median = iterations.get(iterations.len() / 2).copied().unwrap_or(0);
+    Ok((solve, capped, median))
+}

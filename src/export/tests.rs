@@ -1,0 +1,246 @@
+//! End to end: a short track on the bundled sample through the session into every core
+//! format; the files agree with each other and with the session's frames; failures leave
+//! nothing under a final name.
+
+use std::path::{Path, PathBuf};
+
+use super::*;
+use crate::rig::ExpressionCode;
+use crate::sample::{SAMPLE_DIR, Sample};
+use crate::session::face::FaceTopology;
+use crate::session::track::Track;
+use crate::sim::Quality;
+
+fn short_track() -> Track {
+    let mut t = Track::new("neutral");
+    t.set_key(0.0, Default::default());
+    let open = crate::drive::Codes {
+        expression: ExpressionCode::single("jawOpen", 0.4).unwrap(),
+        ..Default::default()
+    };
+    t.set_key(0.3, open);
+    t
+}
+
+fn neutral() -> crate::session::SessionFace {
+    let sample = Sample::load(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(SAMPLE_DIR)).unwrap();
+    sample
+        .session_faces()
+        .into_iter()
+        .find(|f| f.name == "neutral")
+        .unwrap()
+}
+
+fn listing(dir: &Path) -> Vec<String> {
+    let mut names: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    names.sort();
+    names
+}
+
+/// Fails at frame 2 (stands in for a writer or solve failure mid-export).
+struct FailingFactory;
+struct FailingSink;
+impl FrameSink for FailingSink {
+    fn frame(&mut self, index: usize, _: &crate::session::Frame) -> Result<(), ExportError> {
+        if index == 2 {
+            return Err(ExportError::Writer {
+                format: Format::Rrd,
+                reason: "disk full".into(),
+            });
+        }
+        Ok(())
+    }
+    fn finish(self: Box<Self>) -> Result<(), ExportError> {
+        Ok(())
+    }
+}
+impl SinkFactory for FailingFactory {
+    fn create(
+        &self,
+        _: Format,
+        temp: &Path,
+        _: &FaceTopology,
+        _: usize,
+        _: f64,
+    ) -> Result<Option<Box<dyn FrameSink>>, ExportError> {
+        std::fs::write(temp, b"partial").unwrap();
+        Ok(Some(Box::new(FailingSink)))
+    }
+}
+
+#[test]
+fn a_short_track_exports_to_every_format_consistently() {
+    let dir = std::env::temp_dir().join(format!("facesim-export-{}", std::process::id()));
+    staging::remove_any(&dir).unwrap();
+    let face = neutral();
+    let mesh = ExportMesh::of(&face.model);
+    let track = short_track();
+    let job = ExportJob {
+        name: "short".into(),
+        out_dir: dir.clone(),
+        formats: vec![Format::Usd, Format::Pc2, Format::Obj, Format::Gltf],
+        fps: 10.0,
+        quality: Quality::Interactive,
+    };
+
+    // rrd needs the editor binary.
+    let rrd = ExportJob {
+        formats: vec![Format::Rrd],
+        ..job.clone()
+    };
+    let err = export(face.clone(), &track, &rrd, None, &mut |_, _| {}).unwrap_err();
+    assert!(
+        err.to_string().contains("cargo run --release -- export"),
+        "{err}"
+    );
+
+    // What an interrupted run left: a stale temporary and no outputs.
+    std::fs::create_dir_all(&dir).unwrap();
+    std::fs::write(staging::temp_name(&dir.join("short.usda"), ""), "half").unwrap();
+    let mut seen = Vec::new();
+    let summary = export(face.clone(), &track, &job, None, &mut |d, n| {
+        seen.push((d, n))
+    })
+    .unwrap();
+    assert_eq!(summary.frames, 4, "0, 0.1, 0.2, 0.3 s");
+    assert_eq!(seen.last(), Some(&(4, 4)));
+    assert_eq!(
+        listing(&dir),
+        [
+            "short.glb",
+            "short.obj",
+            "short.pc2",
+            "short.usda",
+            "short_obj"
+        ],
+        "only final names remain"
+    );
+    assert_eq!(
+        listing(&dir.join("short_obj")),
+        [
+            "short_0000.obj",
+            "short_0001.obj",
+            "short_0002.obj",
+            "short_0003.obj"
+        ]
+    );
+
+    // PC2: the documented header and size; the frames move (the jaw opens) and match the OBJs.
+    let (header, samples) = pc2::read(&dir.join("short.pc2")).unwrap();
+    assert_eq!(header.points as usize, mesh.vertex_count());
+    assert_eq!(
+        (header.samples, header.start_frame, header.sample_rate),
+        (4, 0.0, 1.0)
+    );
+    let moved = |k: usize| {
+        samples[k]
+            .iter()
+            .zip(&mesh.rest)
+            .map(|(p, r)| {
+                ((p[0] - r[0]).powi(2) + (p[1] - r[1]).powi(2) + (p[2] - r[2]).powi(2)).sqrt()
+            })
+            .fold(0.0f32, f32::max)
+    };
+    assert!(
+        moved(0) < 1e-3,
+        "frame 0 is the rest pose ({} cm)",
+        moved(0)
+    );
+    assert!(moved(3) > 0.3, "the jaw opened ({} cm)", moved(3));
+    assert!(moved(1) < moved(2) && moved(2) < moved(3));
+    let last = crate::rig::obj::ObjMesh::read(dir.join("short_obj/short_0003.obj")).unwrap();
+    for (a, b) in last.positions.iter().zip(&samples[3]) {
+        assert_eq!([a.x as f32, a.y as f32, a.z as f32], *b);
+    }
+    let topology = crate::rig::obj::ObjMesh::read(dir.join("short.obj")).unwrap();
+    assert_eq!(topology.triangles(), mesh.triangles);
+
+    // USD: four samples of points, the last equal to the PC2's to the printed precision.
+    let usda = std::fs::read_to_string(dir.join("short.usda")).unwrap();
+    assert!(usda.contains("timeCodesPerSecond = 10") && usda.contains("endTimeCode = 3"));
+    let line = usda
+        .lines()
+        .find(|l| l.trim_start().starts_with("3: [("))
+        .unwrap();
+    let first: Vec<f32> = line
+        .split(['(', ')'])
+        .nth(1)
+        .unwrap()
+        .split(", ")
+        .map(|v| v.parse().unwrap())
+        .collect();
+    for c in 0..3 {
+        assert!((first[c] - samples[3][0][c]).abs() <= 1e-5);
+    }
+
+    // glTF: target 3 is frame 3 in metres, relative to the rest pose.
+    let (json, bin) = gltf::read_glb(&dir.join("short.glb")).unwrap();
+    let targets = json["meshes"][0]["primitives"][0]["targets"]
+        .as_array()
+        .unwrap()
+        .len();
+    assert_eq!(targets, 4);
+    let a = &json["accessors"][json["meshes"][0]["primitives"][0]["targets"][3]["POSITION"]
+        .as_u64()
+        .unwrap() as usize];
+    let view = &json["bufferViews"][a["bufferView"].as_u64().unwrap() as usize];
+    let o = (view["byteOffset"].as_u64().unwrap() + a["byteOffset"].as_u64().unwrap()) as usize;
+    let dy = f32::from_le_bytes(bin[o + 4..o + 8].try_into().unwrap());
+    assert!((dy - (samples[3][0][1] - mesh.rest[0][1]) * 0.01).abs() < 1e-6);
+
+    // A failure mid-export leaves the previous outputs untouched and no temporaries.
+    let before = std::fs::read(dir.join("short.pc2")).unwrap();
+    let failing = ExportJob {
+        formats: vec![Format::Pc2, Format::Rrd, Format::Gltf],
+        fps: 20.0,
+        ..job.clone()
+    };
+    let err = export(
+        face,
+        &track,
+        &failing,
+        Some(&FailingFactory),
+        &mut |_, _| {},
+    )
+    .unwrap_err();
+    assert!(err.to_string().contains("disk full"), "{err}");
+    assert_eq!(
+        listing(&dir),
+        [
+            "short.glb",
+            "short.obj",
+            "short.pc2",
+            "short.usda",
+            "short_obj"
+        ]
+    );
+    assert_eq!(std::fs::read(dir.join("short.pc2")).unwrap(), before);
+    staging::remove_any(&dir).unwrap();
+}
+
+#[test]
+fn frame_counts_cover_the_track() {
+    assert_eq!(frame_count(10.0, 30.0), 301);
+    assert_eq!(frame_count(0.3, 10.0), 4);
+    assert_eq!(frame_count(0.0, 30.0), 1);
+    assert_eq!(frame_count(0.25, 10.0), 3);
+}
+
+#[test]
+fn faces_are_chosen_by_name_index_or_the_track() {
+    let sample = Sample::load(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(SAMPLE_DIR)).unwrap();
+    let track = short_track();
+    let pick =
+        |w: Option<&str>| cli::choose_face(sample.session_faces(), w, &track).map(|f| f.name);
+    assert_eq!(pick(None).unwrap(), "neutral");
+    assert_eq!(pick(Some("identity001")).unwrap(), "identity001");
+    assert_eq!(pick(Some("2")).unwrap(), sample.session_faces()[2].name);
+    let err = pick(Some("nobody")).unwrap_err().to_string();
+    assert!(
+        err.contains("no face 'nobody'") && err.contains("identity000"),
+        "{err}"
+    );
+}
