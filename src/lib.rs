@@ -9,6 +9,7 @@
 pub mod bench;
 pub mod contact;
 pub mod drive;
+pub mod generative;
 pub mod geometry;
 pub mod mapping;
 pub mod model;
