@@ -5,7 +5,7 @@
 //! centroids; φ for the identities), normalized, and R_φ; N_A's code-independent first layer
 //! over those points is cached ([`crate::nn::PointCache`]). Per frame: the encoders and N_B
 //! (a few thousand flops), N_A's remaining layers over the elements in f32, then per element
-//! `Ã = exp(R_φᵀ log A R_φ) = R_φᵀ A R_φ` (the warp commutes with exp).
+//! `Ã = exp(R_φᵀ log A R_φ) = R_φᵀ A R_φ` (the warp commutes with exp; [`super::expm`]).
 
 use std::sync::Arc;
 
@@ -14,8 +14,8 @@ use nalgebra::Matrix3;
 use rayon::prelude::*;
 
 use super::GenerativeError;
+use super::expm::exp_sym;
 use super::nets::{CanonicalFrame, GenerativeNets};
-use crate::drive::basis::exp_tensor;
 use crate::drive::{Actuation, ActuationModel, Codes, DriveError};
 use crate::mapping::Mapping;
 use crate::mapping::warp::{ElementWarp, centroids, warp};
@@ -163,7 +163,7 @@ impl ActuationModel for GenerativeFace {
             .par_iter()
             .enumerate()
             .with_min_len(256)
-            .map(|(e, l)| exp_tensor(&self.warp.to_material(e, l)))
+            .map(|(e, l)| exp_sym(&self.warp.to_material(e, l)))
             .collect();
         if let Some(e) = tensors.iter().position(|t| t.validate().is_err()) {
             return Err(DriveError::BadTensor {

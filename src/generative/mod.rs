@@ -15,6 +15,7 @@
 
 pub mod data;
 pub mod eval;
+pub mod expm;
 pub mod face;
 pub mod loss;
 pub mod nets;

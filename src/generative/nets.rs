@@ -220,10 +220,7 @@ impl GenerativeNets {
             "architecture".into(),
             serde_json::to_string(&self.architecture).expect("serializable"),
         );
-        meta.insert(
-            "frame".into(),
-            serde_json::to_string(&self.frame).expect("serializable"),
-        );
+        meta.insert("frame".into(), to_hex(&self.frame));
         ck
     }
 
@@ -252,7 +249,7 @@ impl GenerativeNets {
         let architecture: Architecture = serde_json::from_str(parse("architecture")?)
             .map_err(|e| bad(format!("architecture: {e}")))?;
         let frame: CanonicalFrame =
-            serde_json::from_str(parse("frame")?).map_err(|e| bad(format!("frame: {e}")))?;
+            from_hex(parse("frame")?).map_err(|e| bad(format!("frame: {e}")))?;
         let nets = GenerativeNets {
             expression: ck.network("expression")?,
             style: ck.network("style")?,
@@ -284,4 +281,27 @@ impl GenerativeNets {
     pub fn load(path: &std::path::Path) -> Result<Self, GenerativeError> {
         Self::from_checkpoint(&Checkpoint::load(path)?)
     }
+}
+
+/// A value as hex of its postcard encoding: bit-exact for floats (JSON numbers may not
+/// round-trip an f64 exactly, and the canonical frame and optimizer state must, for resumed
+/// runs to be bitwise the uninterrupted ones).
+pub(crate) fn to_hex<T: Serialize>(value: &T) -> String {
+    postcard::to_allocvec(value)
+        .expect("serializable")
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect()
+}
+
+/// The inverse of [`to_hex`].
+pub(crate) fn from_hex<T: serde::de::DeserializeOwned>(hex: &str) -> Result<T, String> {
+    if hex.len() % 2 != 0 || !hex.is_ascii() {
+        return Err("odd or non-ASCII hex".into());
+    }
+    let bytes = (0..hex.len())
+        .step_by(2)
+        .map(|i| u8::from_str_radix(&hex[i..i + 2], 16).map_err(|e| e.to_string()))
+        .collect::<Result<Vec<u8>, String>>()?;
+    postcard::from_bytes(&bytes).map_err(|e| e.to_string())
 }

@@ -15,7 +15,7 @@ use super::GenerativeError;
 use super::data::FacePoses;
 use super::face::FaceWarp;
 use super::loss::{Batch, LossParts, LossWeights, LossWorkspace, batch_loss, zero_grads};
-use super::nets::{Architecture, CanonicalFrame, GenerativeNets, NET_NAMES};
+use super::nets::{Architecture, CanonicalFrame, GenerativeNets, NET_NAMES, from_hex, to_hex};
 use crate::drive::Codes;
 use crate::nn::{Adam, AdamConfig, Checkpoint, LrSchedule};
 
@@ -250,8 +250,11 @@ impl<'a> Trainer<'a> {
         let adams = NET_NAMES
             .iter()
             .map(|n| {
-                ck.optimizer(n).cloned().ok_or_else(|| {
+                let hex = meta.get(&format!("adam_{n}")).ok_or_else(|| {
                     GenerativeError::Checkpoint(format!("no optimizer state for {n}"))
+                })?;
+                from_hex::<Adam>(hex).map_err(|e| {
+                    GenerativeError::Checkpoint(format!("optimizer state of {n}: {e}"))
                 })
             })
             .collect::<Result<_, _>>()?;
@@ -341,10 +344,11 @@ impl<'a> Trainer<'a> {
     /// Networks, optimizer states, settings and the next iteration.
     pub fn checkpoint(&self) -> Checkpoint {
         let mut ck = self.nets.to_checkpoint();
-        for (name, adam) in NET_NAMES.iter().zip(&self.adams) {
-            ck.insert_optimizer(name, adam);
-        }
         let meta = ck.metadata_mut();
+        // Optimizer states as exact bits (see `nets::to_hex`), not the kit's JSON numbers.
+        for (name, adam) in NET_NAMES.iter().zip(&self.adams) {
+            meta.insert(format!("adam_{name}"), to_hex(adam));
+        }
         meta.insert(
             CONFIG_KEY.into(),
             serde_json::to_string(&self.config).expect("serializable"),
