@@ -31,8 +31,25 @@ use crate::rig::{ExpressionCode, FaceRig, StyleCode};
 /// way poses are made changes.
 pub const POSES_FORMAT: Format = Format {
     kind: "poses",
-    version: 1,
+    version: 2,
 };
+
+/// A content hash of a face's simulation mesh and render rest (the poses are stale when the
+/// face is rebuilt, even with the same element count).
+pub fn face_hash(face: &FaceModel) -> u64 {
+    let mut bytes = Vec::new();
+    for p in face.mesh.vertices.iter().chain(&face.render.rest) {
+        for k in 0..3 {
+            bytes.extend_from_slice(&p[k].to_le_bytes());
+        }
+    }
+    for t in &face.mesh.tets {
+        for v in t {
+            bytes.extend_from_slice(&v.to_le_bytes());
+        }
+    }
+    xxhash_rust::xxh3::xxh3_64(&bytes)
+}
 
 /// Which poses a face gets (module docs).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -133,6 +150,8 @@ pub struct PoseData {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct FacePoses {
     pub face: String,
+    /// [`face_hash`] of the face the poses were fitted on.
+    pub face_hash: u64,
     pub element_count: usize,
     pub settings: PoseSettings,
     pub poses: Vec<PoseData>,
@@ -182,6 +201,7 @@ impl FacePoses {
         progress(poses.len(), poses.len());
         Ok(FacePoses {
             face: face.name.clone(),
+            face_hash: face_hash(face),
             element_count: face.mesh.element_count(),
             settings: settings.clone(),
             poses,
@@ -189,7 +209,8 @@ impl FacePoses {
     }
 
     /// The cached poses at `path` if they exist and were made for `face` with `settings`;
-    /// `None` when they must be (re)generated. A corrupt file is an error.
+    /// `None` when they must be (re)generated (missing, an older format, other settings, another
+    /// or rebuilt face). A corrupt file is an error.
     pub fn load_matching(
         path: &Path,
         face: &FaceModel,
@@ -205,6 +226,7 @@ impl FacePoses {
             Err(e) => return Err(e.into()),
         };
         let matches = poses.face == face.name
+            && poses.face_hash == face_hash(face)
             && poses.element_count == face.mesh.element_count()
             && poses.settings == *settings
             && poses

@@ -200,3 +200,20 @@ pub fn sample_actuations(
         })
         .collect()
 }
+
+/// The trained networks' file name in a sample folder (`sample_models/ict/generative.nn`).
+pub const SAMPLE_NETWORKS: &str = "generative.nn";
+
+/// The sample's trained networks (its [`SAMPLE_NETWORKS`] file) driving each of its faces, in
+/// the sample's order; `None` when the sample has no networks. What the session loads to
+/// drive the faces with the networks instead of the actuation bases.
+pub fn load_sample_networks(
+    sample: &Sample,
+) -> Result<Option<Vec<Arc<dyn ActuationModel>>>, GenerativeError> {
+    let path = sample.dir.join(SAMPLE_NETWORKS);
+    if !path.exists() {
+        return Ok(None);
+    }
+    let nets = Arc::new(GenerativeNets::load(&path)?);
+    sample_actuations(sample, nets).map(Some)
+}

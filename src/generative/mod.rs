@@ -26,7 +26,7 @@ mod tests;
 
 pub use data::{FacePoses, PoseData, PoseSettings, held_out_codes, training_codes};
 pub use eval::{EvalReport, EvalRow, evaluate};
-pub use face::{GenerativeFace, sample_actuations};
+pub use face::{GenerativeFace, SAMPLE_NETWORKS, load_sample_networks, sample_actuations};
 pub use nets::{Architecture, CanonicalFrame, GenerativeNets};
 pub use train::{LossRow, Stage1Config, Stage1Data, train_stage1};
 
