@@ -128,7 +128,7 @@ pub fn training_codes(style: StyleCode, settings: &PoseSettings, face_index: u64
 /// `count` held-out expression codes (random combinations from a stream no training pose
 /// uses).
 pub fn held_out_codes(count: usize, seed: u64) -> Vec<ExpressionCode> {
-    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x4e1d_0u64);
+    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x0004_e1d0_u64);
     (0..count).map(|_| combination(&mut rng)).collect()
 }
 

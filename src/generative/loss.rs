@@ -215,7 +215,7 @@ pub fn batch_loss(
 
     // tanh and the encoders.
     let dz = |b: usize, k: usize| du[b * cd + k] * (1.0 - u[(b, k)] * u[(b, k)]);
-    let dye = Mat::from_fn(b_count, de, |b, k| dz(b, k));
+    let dye = Mat::from_fn(b_count, de, &dz);
     let dys = Mat::from_fn(b_count, cd - de, |b, k| dz(b, de + k));
     nets.expression
         .backward(tape_e, Some(dye.as_ref()), None, grad_e, Par::Seq)?;

@@ -296,7 +296,7 @@ pub(crate) fn to_hex<T: Serialize>(value: &T) -> String {
 
 /// The inverse of [`to_hex`].
 pub(crate) fn from_hex<T: serde::de::DeserializeOwned>(hex: &str) -> Result<T, String> {
-    if hex.len() % 2 != 0 || !hex.is_ascii() {
+    if !hex.len().is_multiple_of(2) || !hex.is_ascii() {
         return Err("odd or non-ASCII hex".into());
     }
     let bytes = (0..hex.len())

@@ -115,6 +115,7 @@ fn bits(nets: &GenerativeNets) -> Vec<u64> {
 /// The stage-1 loss gradient through N_A (fit, regularizer, Lipschitz), N_B, tanh and both
 /// encoders agrees with central differences, for parameters of every network.
 #[test]
+#[allow(clippy::needless_range_loop)] // n indexes the networks and their gradients alike
 fn stage1_loss_gradient_matches_central_differences() {
     let data = small_data();
     let config = small_config(1, 5);
