@@ -10,6 +10,7 @@ pub mod bench;
 pub mod contact;
 pub mod drive;
 pub mod export;
+pub mod generative;
 pub mod geometry;
 pub mod mapping;
 pub mod model;

@@ -6,6 +6,7 @@ use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
 
 mod cli_bench;
+mod cli_generative;
 mod cli_mapping;
 
 #[derive(Parser)]
@@ -64,6 +65,12 @@ enum Command {
         #[arg(long, default_value = "interactive")]
         quality: facesim::sim::Quality,
     },
+    /// Train the expression/style networks (`--stage 1`: fit the per-pose actuations and jaw
+    /// motions fitted to the rig's targets; the data is made once and cached under OUT/poses).
+    Train(cli_generative::TrainArgs),
+    /// Simulate held-out codes with trained networks and with the actuation basis and report
+    /// the skin's vertex error against the rig's targets.
+    Eval(cli_generative::EvalArgs),
     /// Measure performance (results are medians of repeated runs).
     Bench {
         #[command(subcommand)]
@@ -73,6 +80,9 @@ enum Command {
 
 #[derive(Subcommand)]
 enum BenchTarget {
+    /// The expression/style networks' inference on the sample's faces: N_A over every
+    /// element (cached first layer and not) and the whole codes → actuation step.
+    Nets(cli_generative::BenchArgs),
     /// Editor latency on the sample: slider change → new frame available through the session,
     /// per quality preset (each drag step waits for its frame).
     Editor {
@@ -144,6 +154,11 @@ fn main() -> Result<()> {
             identities,
         } => sample(&rig, &out, &identities)?,
         Command::TrainMapping(args) => cli_mapping::train_mapping(&args)?,
+        Command::Train(args) => cli_generative::train(&args)?,
+        Command::Eval(args) => cli_generative::eval(&args)?,
+        Command::Bench {
+            target: BenchTarget::Nets(args),
+        } => cli_generative::bench(&args)?,
         Command::Stats(args) => cli_mapping::stats(&args)?,
         Command::Export {
             args,

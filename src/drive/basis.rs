@@ -191,7 +191,7 @@ impl ActuationModel for ActuationBasis {
 }
 
 /// `log A` of a symmetric positive definite tensor.
-fn log_tensor(a: &SymTensor) -> [f32; 6] {
+pub(crate) fn log_tensor(a: &SymTensor) -> [f32; 6] {
     let eigen = SymmetricEigen::new(a.to_matrix());
     let m = eigen.eigenvectors
         * Matrix3::from_diagonal(&eigen.eigenvalues.map(f64::ln))
@@ -200,7 +200,7 @@ fn log_tensor(a: &SymTensor) -> [f32; 6] {
 }
 
 /// `exp L` of a symmetric tensor; exactly the identity for `L = 0`.
-fn exp_tensor(log: &[f64; 6]) -> SymTensor {
+pub(crate) fn exp_tensor(log: &[f64; 6]) -> SymTensor {
     if log.iter().all(|&v| v == 0.0) {
         return SymTensor::IDENTITY;
     }

@@ -1,0 +1,435 @@
+//! `facesim train`, `facesim eval` and `facesim bench nets`: the command-line side of
+//! `facesim::generative` (data cache, progress bar, loss curve, checkpoints, tables).
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Instant;
+
+use anyhow::{Context, Result};
+use facesim::drive::ActuationModel;
+use facesim::generative::data::FacePoses;
+use facesim::generative::eval::EvalFace;
+use facesim::generative::face::FaceWarp;
+use facesim::generative::train::{LOSS_CSV_HEADER, Trainer};
+use facesim::generative::{
+    CanonicalFrame, GenerativeFace, GenerativeNets, PoseSettings, Stage1Config, Stage1Data,
+    held_out_codes,
+};
+use facesim::nn::Checkpoint;
+use facesim::rig::FaceRig;
+use facesim::sample::Sample;
+
+#[derive(clap::Args)]
+pub struct TrainArgs {
+    /// Training stage (only 1 exists yet: fit the stage-1 actuations and jaw motions).
+    #[arg(long)]
+    stage: u32,
+    /// The sample folder (faces, mappings).
+    #[arg(long, default_value = facesim::sample::SAMPLE_DIR)]
+    sample: PathBuf,
+    /// The rig (needed only to make missing stage-1 data).
+    #[arg(long, default_value = "../shared/data/ict-facekit")]
+    rig: PathBuf,
+    /// Output folder: generative.nn, checkpoint.nn, loss.csv, train.json, poses/.
+    #[arg(long)]
+    out: PathBuf,
+    #[arg(long, default_value_t = Stage1Config::default().seed)]
+    seed: u64,
+    #[arg(long, default_value_t = Stage1Config::default().iterations)]
+    iterations: u64,
+    /// Peak learning rate (constant for the first half, then linear decay to 0).
+    #[arg(long, default_value_t = Stage1Config::default().learning_rate)]
+    lr: f64,
+    /// Poses per batch.
+    #[arg(long, default_value_t = Stage1Config::default().batch_poses)]
+    batch: usize,
+    /// Elements sampled per pose (0: all).
+    #[arg(long, default_value_t = Stage1Config::default().elements_per_pose)]
+    elements_per_pose: usize,
+    /// Write checkpoint.nn every this many iterations (and at the end).
+    #[arg(long, default_value_t = 500)]
+    checkpoint_every: u64,
+    /// Continue from OUT/checkpoint.nn (same settings) instead of starting over.
+    #[arg(long)]
+    resume: bool,
+    /// Random combinations per face in the stage-1 data.
+    #[arg(long, default_value_t = PoseSettings::default().combinations)]
+    combinations: usize,
+}
+
+#[derive(clap::Args)]
+pub struct EvalArgs {
+    #[arg(long, default_value = facesim::sample::SAMPLE_DIR)]
+    sample: PathBuf,
+    #[arg(long, default_value = "../shared/data/ict-facekit")]
+    rig: PathBuf,
+    /// The trained networks (generative.nn).
+    #[arg(long)]
+    model: PathBuf,
+    /// Where to write eval.csv, eval.json and eval.md.
+    #[arg(long)]
+    out: PathBuf,
+    /// Held-out expression codes per face.
+    #[arg(long, default_value_t = 8)]
+    held_out: usize,
+    /// Seed of the held-out codes.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+}
+
+#[derive(clap::Args)]
+pub struct BenchArgs {
+    #[arg(long, default_value = facesim::sample::SAMPLE_DIR)]
+    sample: PathBuf,
+    /// Trained networks; without it, untrained networks of the default architecture (the
+    /// cost is the same).
+    #[arg(long)]
+    model: Option<PathBuf>,
+    /// Timing samples per measurement.
+    #[arg(long, default_value_t = 30)]
+    samples: usize,
+}
+
+fn sample(dir: &Path) -> Result<Sample> {
+    Sample::load(dir).with_context(|| format!("loading the sample in {}", dir.display()))
+}
+
+fn canonical_frame(sample: &Sample) -> Result<CanonicalFrame> {
+    let canonical = sample
+        .faces
+        .iter()
+        .find(|f| f.identity.is_none())
+        .context("the sample has no template (canonical) face")?;
+    Ok(CanonicalFrame::of(&canonical.model))
+}
+
+fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
+    let tmp = path.with_extension("tmp");
+    std::fs::write(&tmp, bytes).with_context(|| format!("writing {}", tmp.display()))?;
+    std::fs::rename(&tmp, path).with_context(|| format!("renaming to {}", path.display()))
+}
+
+fn save_checkpoint(ck: &Checkpoint, path: &Path) -> Result<()> {
+    let mut bytes = Vec::new();
+    ck.to_writer(&mut bytes)?;
+    write_atomic(path, &bytes)
+}
+
+fn median(v: &mut [f64]) -> f64 {
+    v.sort_by(f64::total_cmp);
+    if v.is_empty() { 0.0 } else { v[v.len() / 2] }
+}
+
+/// The stage-1 poses of every sample face: cached ones, the rest fitted (and cached).
+fn stage1_poses(
+    sample: &Sample,
+    rig_dir: &Path,
+    dir: &Path,
+    settings: &PoseSettings,
+) -> Result<Vec<FacePoses>> {
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    let mut rig: Option<FaceRig> = None;
+    let mut out = Vec::new();
+    for (i, f) in sample.faces.iter().enumerate() {
+        let path = dir.join(format!("{}.poses", f.name));
+        if let Some(p) = FacePoses::load_matching(&path, &f.model, settings)
+            .with_context(|| format!("reading {}", path.display()))?
+        {
+            eprintln!(
+                "{}: {} cached poses ({})",
+                f.name,
+                p.poses.len(),
+                path.display()
+            );
+            out.push(p);
+            continue;
+        }
+        if rig.is_none() {
+            rig = Some(crate::load_rig(rig_dir)?);
+        }
+        let bar = indicatif::ProgressBar::new(0);
+        bar.set_style(indicatif::ProgressStyle::with_template(
+            "{msg:>24} [{bar:30}] {pos}/{len} {elapsed_precise}",
+        )?);
+        bar.set_message(format!("fitting {}", f.name));
+        let start = Instant::now();
+        let p = FacePoses::generate(
+            rig.as_ref().expect("loaded"),
+            &f.model,
+            f.style,
+            i as u64,
+            settings,
+            &|done, total| {
+                bar.set_length(total as u64);
+                bar.set_position(done as u64);
+            },
+        )
+        .with_context(|| format!("making the stage-1 data of {}", f.name))?;
+        bar.finish_and_clear();
+        let clamped: usize = p.poses.iter().map(|p| p.clamped).sum();
+        let worst = p.poses.iter().map(|p| p.skin_rms).fold(0.0, f64::max);
+        eprintln!(
+            "{}: fitted {} poses in {:.1} s (worst skin RMS {:.3} mm, {clamped} clamped elements)",
+            f.name,
+            p.poses.len(),
+            start.elapsed().as_secs_f64(),
+            10.0 * worst
+        );
+        p.save(&path)
+            .with_context(|| format!("writing {}", path.display()))?;
+        out.push(p);
+    }
+    Ok(out)
+}
+
+pub fn train(a: &TrainArgs) -> Result<()> {
+    anyhow::ensure!(
+        a.stage == 1,
+        "stage {} is not implemented; only stage 1 (fit to the stage-1 actuations) exists",
+        a.stage
+    );
+    let sample = sample(&a.sample)?;
+    let frame = canonical_frame(&sample)?;
+    std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
+    let settings = PoseSettings {
+        combinations: a.combinations,
+        ..PoseSettings::default()
+    };
+    let poses = stage1_poses(&sample, &a.rig, &a.out.join("poses"), &settings)?;
+    let mut faces = Vec::new();
+    for (f, p) in sample.faces.iter().zip(poses) {
+        let warp = FaceWarp::new(&f.model, f.mapping.as_ref(), &frame)
+            .with_context(|| format!("canonical positions of {}", f.name))?;
+        faces.push((warp, p));
+    }
+    let data = Stage1Data::new(faces)?;
+    let config = Stage1Config {
+        iterations: a.iterations,
+        learning_rate: a.lr,
+        batch_poses: a.batch,
+        elements_per_pose: a.elements_per_pose,
+        seed: a.seed,
+        ..Stage1Config::default()
+    };
+    let ck_path = a.out.join("checkpoint.nn");
+    let csv_path = a.out.join("loss.csv");
+    let mut trainer = if a.resume {
+        let ck = Checkpoint::load(&ck_path)
+            .with_context(|| format!("loading {} to resume", ck_path.display()))?;
+        Trainer::resume(&data, config, &ck).context("resuming")?
+    } else {
+        anyhow::ensure!(
+            !ck_path.exists(),
+            "{} exists: pass --resume to continue that run, or remove it",
+            ck_path.display()
+        );
+        Trainer::new(&data, config, frame)?
+    };
+    // The loss curve: keep the rows before the resumed iteration.
+    let mut csv = String::from(LOSS_CSV_HEADER);
+    csv.push('\n');
+    if a.resume && csv_path.exists() {
+        let old = std::fs::read_to_string(&csv_path)?;
+        for line in old.lines().skip(1) {
+            let it: u64 = line
+                .split(',')
+                .next()
+                .and_then(|s| s.parse().ok())
+                .unwrap_or(u64::MAX);
+            if it < trainer.iteration() {
+                csv.push_str(line);
+                csv.push('\n');
+            }
+        }
+    }
+    write_atomic(&csv_path, csv.as_bytes())?;
+    let mut csv_file = std::fs::OpenOptions::new()
+        .append(true)
+        .open(&csv_path)
+        .with_context(|| format!("opening {}", csv_path.display()))?;
+
+    eprintln!(
+        "stage 1: {} poses on {} faces, {} iterations from {}, batch {} × {} elements, seed {}",
+        data.pose_count(),
+        data.faces.len(),
+        config.iterations,
+        trainer.iteration(),
+        config.batch_poses,
+        config.elements_per_pose,
+        config.seed
+    );
+    let bar = indicatif::ProgressBar::new(config.iterations);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template(
+            "[{bar:30}] {pos}/{len} {elapsed_precise} eta {eta} {msg}",
+        )?
+        .progress_chars("=> "),
+    );
+    bar.set_position(trainer.iteration());
+    let start = Instant::now();
+    let mut step_ms = Vec::new();
+    let mut last = None;
+    while !trainer.done() {
+        let t = Instant::now();
+        let row = trainer
+            .step()
+            .with_context(|| format!("iteration {}", trainer.iteration()))?;
+        step_ms.push(t.elapsed().as_secs_f64() * 1e3);
+        writeln!(csv_file, "{}", row.csv())?;
+        if row.iteration % 10 == 0 {
+            bar.set_message(format!(
+                "fit {:.4} jaw {:.4} cm² total {:.4}",
+                row.parts.fit, row.parts.jaw, row.parts.total
+            ));
+        }
+        bar.inc(1);
+        if trainer.iteration() % a.checkpoint_every == 0 || trainer.done() {
+            csv_file.flush()?;
+            save_checkpoint(&trainer.checkpoint(), &ck_path)?;
+        }
+        last = Some(row);
+    }
+    bar.finish_and_clear();
+    let seconds = start.elapsed().as_secs_f64();
+    let model_path = a.out.join("generative.nn");
+    trainer
+        .nets()
+        .save(&model_path)
+        .with_context(|| format!("writing {}", model_path.display()))?;
+    let ms = median(&mut step_ms);
+    let summary = serde_json::json!({
+        "stage": 1,
+        "config": config,
+        "pose_settings": settings,
+        "poses": data.pose_count(),
+        "iterations_run": step_ms.len(),
+        "seconds": seconds,
+        "median_ms_per_iteration": ms,
+        "last": last,
+    });
+    write_atomic(
+        &a.out.join("train.json"),
+        serde_json::to_string_pretty(&summary)?.as_bytes(),
+    )?;
+    println!(
+        "trained {} iterations in {seconds:.1} s (median {ms:.1} ms per iteration; {} iterations would take {:.1} min); wrote {}",
+        step_ms.len(),
+        config.iterations,
+        ms * config.iterations as f64 / 60e3,
+        model_path.display()
+    );
+    if let Some(r) = last {
+        println!(
+            "last batch: fit {:.5}, jaw {:.5} cm², act {:.4}, Π softplus(c) {:.3}, total {:.5}",
+            r.parts.fit, r.parts.jaw, r.parts.act, r.parts.lip, r.parts.total
+        );
+    }
+    Ok(())
+}
+
+pub fn eval(a: &EvalArgs) -> Result<()> {
+    let sample = sample(&a.sample)?;
+    let nets = Arc::new(
+        GenerativeNets::load(&a.model).with_context(|| format!("loading {}", a.model.display()))?,
+    );
+    let rig = crate::load_rig(&a.rig)?;
+    let generative: Vec<GenerativeFace> = sample
+        .faces
+        .iter()
+        .map(|f| {
+            GenerativeFace::new(nets.clone(), &f.model, f.mapping.as_ref())
+                .with_context(|| format!("binding the networks to {}", f.name))
+        })
+        .collect::<Result<_>>()?;
+    let faces: Vec<EvalFace<'_>> = sample
+        .faces
+        .iter()
+        .zip(&generative)
+        .map(|(f, g)| EvalFace {
+            face: &f.model,
+            style: f.style,
+            models: vec![
+                ("networks", g as &dyn ActuationModel),
+                ("basis", f.actuation.as_ref()),
+            ],
+        })
+        .collect();
+    let codes = held_out_codes(a.held_out, a.seed);
+    let bar = crate::spinner();
+    let report =
+        facesim::generative::evaluate(&rig, &faces, &codes, &|m| bar.set_message(m.to_string()))?;
+    bar.finish_and_clear();
+    std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
+    write_atomic(&a.out.join("eval.csv"), report.csv().as_bytes())?;
+    write_atomic(&a.out.join("eval.md"), report.table().as_bytes())?;
+    write_atomic(
+        &a.out.join("eval.json"),
+        serde_json::to_string_pretty(&report)?.as_bytes(),
+    )?;
+    print!("{}", report.table());
+    for p in report.poses.iter().filter(|p| p.error.is_some()) {
+        eprintln!(
+            "{} / {} / code {}: {}",
+            p.face,
+            p.model,
+            p.code,
+            p.error.as_deref().unwrap_or("")
+        );
+    }
+    Ok(())
+}
+
+pub fn bench(a: &BenchArgs) -> Result<()> {
+    let sample = sample(&a.sample)?;
+    let nets = Arc::new(match &a.model {
+        Some(p) => GenerativeNets::load(p).with_context(|| format!("loading {}", p.display()))?,
+        None => GenerativeNets::new(Default::default(), canonical_frame(&sample)?, 1)?,
+    });
+    println!(
+        "| face | elements | N_A, cached first layer (median ms) | N_A, no cache (median ms) | actuate: codes → tensors + jaw (median ms) |"
+    );
+    println!("|---|---:|---:|---:|---:|");
+    let codes = facesim::drive::Codes {
+        expression: facesim::rig::ExpressionCode::single("jawOpen", 0.6).expect("a code shape"),
+        style: Default::default(),
+    };
+    for f in &sample.faces {
+        let g = GenerativeFace::new(nets.clone(), &f.model, f.mapping.as_ref())?;
+        let u = nets.modulation(std::slice::from_ref(&codes))?;
+        let u: Vec<f64> = (0..u.ncols()).map(|k| u[(0, k)]).collect();
+        let u32: Vec<f32> = u.iter().map(|&v| v as f32).collect();
+        let mut tape = facesim::nn::Tape::new();
+        let na32: facesim::nn::Mlp<f32> = nets.actuation.cast();
+        let warp = FaceWarp::new(&f.model, f.mapping.as_ref(), &nets.frame)?;
+        let x = warp.input::<f32>();
+        let (mut cached, mut full, mut actuate) = (Vec::new(), Vec::new(), Vec::new());
+        for _ in 0..a.samples {
+            let t = Instant::now();
+            g.canonical_logs(&u, &mut tape)?;
+            cached.push(t.elapsed().as_secs_f64() * 1e3);
+            let t = Instant::now();
+            na32.forward(
+                x.as_ref(),
+                Some(&facesim::nn::CodeBatch::shared(&u32)),
+                facesim::nn::Pass::Value,
+                &mut tape,
+                faer::Par::Seq,
+            )?;
+            full.push(t.elapsed().as_secs_f64() * 1e3);
+            let t = Instant::now();
+            let act = g.actuate(&codes)?;
+            actuate.push(t.elapsed().as_secs_f64() * 1e3);
+            std::hint::black_box(act);
+        }
+        println!(
+            "| {} | {} | {:.2} | {:.2} | {:.2} |",
+            f.name,
+            g.element_count(),
+            median(&mut cached),
+            median(&mut full),
+            median(&mut actuate)
+        );
+    }
+    Ok(())
+}

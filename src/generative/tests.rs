@@ -1,0 +1,393 @@
+//! Tests of the expression/style networks (tiny networks, few iterations; the bundled sample's
+//! faces and mappings, actuations from its bases where the rig's fits are not the point).
+
+use std::sync::{Arc, OnceLock};
+
+use faer::Par;
+
+use super::data::{FacePoses, PoseData, PoseSettings, held_out_codes, training_codes};
+use super::eval::{EvalFace, evaluate};
+use super::face::{FaceWarp, GenerativeFace};
+use super::loss::{LossWeights, LossWorkspace, batch_loss, zero_grads};
+use super::nets::{Architecture, CanonicalFrame, GenerativeNets};
+use super::train::{Stage1Config, Stage1Data, Trainer, train_stage1};
+use crate::drive::basis::log_tensor;
+use crate::drive::{ActuationModel, Codes};
+use crate::rig::test_support::{rig, temp_dir};
+use crate::rig::{ExpressionCode, StyleCode};
+use crate::sample::{SAMPLE_DIR, Sample};
+
+fn sample() -> &'static Sample {
+    static SAMPLE: OnceLock<Sample> = OnceLock::new();
+    SAMPLE.get_or_init(|| Sample::load(SAMPLE_DIR).expect("the bundled sample"))
+}
+
+fn frame() -> CanonicalFrame {
+    CanonicalFrame::of(&sample().faces[0].model)
+}
+
+fn tiny() -> Architecture {
+    Architecture {
+        expression_hidden: 8,
+        expression_dim: 5,
+        style_hidden: 6,
+        style_dim: 3,
+        actuation_width: 8,
+        actuation_gelu_layers: 2,
+        omega0: 10.0,
+        jaw_width: 7,
+    }
+}
+
+/// Poses of sample face `f` labelled by its actuation basis (cheap stand-ins for the rig's
+/// fits, same shape of data).
+fn basis_poses(f: usize, codes: &[Codes]) -> FacePoses {
+    let face = &sample().faces[f];
+    let poses = codes
+        .iter()
+        .map(|c| {
+            let a = face.actuation.actuate(c).unwrap();
+            PoseData {
+                codes: *c,
+                jaw: a.jaw.params(),
+                logs: a.tensors.iter().map(log_tensor).collect(),
+                skin_rms: 0.0,
+                clamped: 0,
+            }
+        })
+        .collect();
+    FacePoses {
+        face: face.name.clone(),
+        face_hash: super::data::face_hash(&face.model),
+        element_count: face.model.mesh.element_count(),
+        settings: PoseSettings::default(),
+        poses,
+    }
+}
+
+/// Stage-1 data on the template face and identity 0 (7 poses each).
+fn small_data() -> &'static Stage1Data {
+    static DATA: OnceLock<Stage1Data> = OnceLock::new();
+    DATA.get_or_init(|| {
+        let settings = PoseSettings {
+            single_weights: vec![1.0],
+            combinations: 2,
+            styled_singles: 0,
+            seed: 3,
+        };
+        let faces = [0usize, 1]
+            .iter()
+            .map(|&f| {
+                let sf = &sample().faces[f];
+                let codes: Vec<Codes> = training_codes(sf.style, &settings, f as u64)
+                    .into_iter()
+                    .step_by(3)
+                    .collect();
+                let warp = FaceWarp::new(&sf.model, sf.mapping.as_ref(), &frame()).unwrap();
+                (warp, basis_poses(f, &codes))
+            })
+            .collect();
+        Stage1Data::new(faces).unwrap()
+    })
+}
+
+fn small_config(iterations: u64, seed: u64) -> Stage1Config {
+    Stage1Config {
+        architecture: tiny(),
+        iterations,
+        batch_poses: 3,
+        elements_per_pose: 64,
+        learning_rate: 3e-3,
+        seed,
+        chunk_rows: 32,
+        lanes: 4,
+        ..Stage1Config::default()
+    }
+}
+
+fn bits(nets: &GenerativeNets) -> Vec<u64> {
+    nets.nets()
+        .iter()
+        .flat_map(|n| n.params().iter().map(|p| p.to_bits()))
+        .collect()
+}
+
+/// The stage-1 loss gradient through N_A (fit, regularizer, Lipschitz), N_B, tanh and both
+/// encoders agrees with central differences, for parameters of every network.
+#[test]
+#[allow(clippy::needless_range_loop)] // n indexes the networks and their gradients alike
+fn stage1_loss_gradient_matches_central_differences() {
+    let data = small_data();
+    let config = small_config(1, 5);
+    let batch = data.batch(&config, 0);
+    let mut nets = GenerativeNets::new(tiny(), frame(), 9).unwrap();
+    // The initial bound equals the largest row sum: that row sits on the kink of
+    // min(1, softplus(c)/Σ|w|), where central differences straddle two slopes. Lower every
+    // bound so the normalization is active on some rows and off on others, away from kinks.
+    for i in nets.actuation.lipschitz_param_indices() {
+        nets.actuation.params_mut()[i] -= 0.4;
+    }
+    // A Lipschitz product and λs large enough to matter at this tolerance.
+    let w = LossWeights {
+        lambda_act: 0.3,
+        lambda_lip: 1e-2,
+        jaw_lever_cm: 2.0,
+    };
+    let mut ws = LossWorkspace::new(16, 3).unwrap();
+    let mut grads = zero_grads(&nets);
+    batch_loss(&nets, &batch, &w, &mut ws, &mut grads, Par::Seq).unwrap();
+    let h = 1e-6;
+    for n in 0..4 {
+        let count = nets.nets()[n].num_params();
+        let step = (count / 12).max(1);
+        let mut checked = 0;
+        for p in (0..count).step_by(step) {
+            let mut f = |delta: f64| {
+                let keep = nets.nets()[n].params()[p];
+                nets.nets_mut()[n].params_mut()[p] = keep + delta;
+                let mut g = zero_grads(&nets);
+                let l = batch_loss(&nets, &batch, &w, &mut ws, &mut g, Par::Seq)
+                    .unwrap()
+                    .total;
+                nets.nets_mut()[n].params_mut()[p] = keep;
+                l
+            };
+            let fd = (f(h) - f(-h)) / (2.0 * h);
+            let an = grads[n][p];
+            assert!(
+                (fd - an).abs() <= 1e-5 * (1.0 + fd.abs()),
+                "network {n} param {p}: analytic {an} vs central difference {fd}"
+            );
+            checked += 1;
+        }
+        assert!(checked >= 10);
+    }
+    // The Lipschitz bounds get a gradient.
+    let lip = nets.actuation.lipschitz_param_indices();
+    assert_eq!(lip.len(), 2);
+    assert!(lip.iter().all(|&i| grads[2][i] != 0.0));
+}
+
+/// Every code gives symmetric positive definite tensors and a finite jaw, on the template
+/// face and on an identity (through φ), also codes far beyond the sliders' ranges; zero
+/// network output is exactly the rest.
+#[test]
+fn outputs_are_spd_for_any_code() {
+    let nets = Arc::new(GenerativeNets::new(Architecture::default(), frame(), 4).unwrap());
+    let s = sample();
+    for f in [&s.faces[0], &s.faces[2]] {
+        let g = GenerativeFace::new(nets.clone(), &f.model, f.mapping.as_ref()).unwrap();
+        assert_eq!(g.element_count(), f.model.mesh.element_count());
+        for scale in [0.0, 1.0, -3.0, 50.0, 1e6, -1e12] {
+            let mut codes = Codes::default();
+            for (k, v) in codes.expression.0.iter_mut().enumerate() {
+                *v = scale * ((k % 5) as f64 - 1.5);
+            }
+            codes.style = StyleCode([scale, -scale, 0.5 * scale, 2.0]);
+            let a = g.actuate(&codes).unwrap();
+            assert_eq!(a.tensors.len(), g.element_count());
+            for t in &a.tensors {
+                t.validate().unwrap();
+                let eig = nalgebra::SymmetricEigen::new(t.to_matrix()).eigenvalues;
+                assert!(eig.iter().all(|&l| l > 0.0 && l.is_finite()), "{t:?}");
+            }
+            assert!(
+                a.jaw
+                    .params()
+                    .iter()
+                    .all(|v| v.is_finite() && v.abs() < 100.0)
+            );
+        }
+        let mut bad = Codes::default();
+        bad.expression.0[3] = f64::NAN;
+        assert!(g.actuate(&bad).is_err());
+    }
+    // A network whose last layer outputs zero gives exactly A = I on an identity (the warp
+    // keeps identities).
+    let mut zero = GenerativeNets::new(Architecture::default(), frame(), 4).unwrap();
+    let n = zero.actuation.num_params();
+    let last = 6 * (Architecture::default().actuation_width + 1);
+    zero.actuation.params_mut()[n - last..].fill(0.0);
+    let f = &s.faces[1];
+    let g = GenerativeFace::new(Arc::new(zero), &f.model, f.mapping.as_ref()).unwrap();
+    let a = g.actuate(&Codes::default()).unwrap();
+    assert!(
+        a.tensors
+            .iter()
+            .all(|t| *t == crate::sim::SymTensor::IDENTITY)
+    );
+}
+
+/// Same seed → bitwise the same networks; another seed → different; a run stopped, saved to a
+/// checkpoint file, loaded and resumed is bitwise the uninterrupted run.
+#[test]
+fn training_is_deterministic_and_resumable() {
+    let data = small_data();
+    let (a, rows_a) = train_stage1(data, small_config(6, 11), frame(), |_| {}).unwrap();
+    let (b, rows_b) = train_stage1(data, small_config(6, 11), frame(), |_| {}).unwrap();
+    assert_eq!(bits(&a), bits(&b));
+    assert_eq!(rows_a, rows_b);
+    let (c, _) = train_stage1(data, small_config(6, 12), frame(), |_| {}).unwrap();
+    assert_ne!(bits(&a), bits(&c));
+
+    let mut t = Trainer::new(data, small_config(6, 11), frame()).unwrap();
+    for _ in 0..3 {
+        t.step().unwrap();
+    }
+    let path = temp_dir("stage1-resume").join("checkpoint.nn");
+    t.checkpoint().save(&path).unwrap();
+    drop(t);
+    let ck = crate::nn::Checkpoint::load(&path).unwrap();
+    let mut resumed = Trainer::resume(data, small_config(6, 11), &ck).unwrap();
+    assert_eq!(resumed.iteration(), 3);
+    let mut rows = Vec::new();
+    while !resumed.done() {
+        rows.push(resumed.step().unwrap());
+    }
+    assert_eq!(bits(resumed.nets()), bits(&a));
+    assert_eq!(rows, rows_a[3..]);
+    // Other settings are refused.
+    assert!(Trainer::resume(data, small_config(7, 11), &ck).is_err());
+    // The final networks round-trip through their file.
+    let model = path.with_file_name("generative.nn");
+    a.save(&model).unwrap();
+    assert_eq!(GenerativeNets::load(&model).unwrap(), a);
+}
+
+/// Training lowers the loss: the mean of the last 10 batch losses is well below the first 10
+/// (same batches compared through their seeds).
+#[test]
+fn training_lowers_the_loss() {
+    let data = small_data();
+    let config = small_config(150, 2);
+    let (nets, rows) = train_stage1(data, config, frame(), |_| {}).unwrap();
+    let mean = |r: &[super::LossRow]| r.iter().map(|r| r.parts.total).sum::<f64>() / r.len() as f64;
+    let (first, last) = (mean(&rows[..10]), mean(&rows[rows.len() - 10..]));
+    assert!(last < 0.5 * first, "loss {first} → {last}");
+    // On a fixed batch too.
+    let batch = data.batch(&config, 0);
+    let fresh = GenerativeNets::new(tiny(), frame(), config.seed).unwrap();
+    let mut ws = LossWorkspace::new(32, 4).unwrap();
+    let loss = |n: &GenerativeNets, ws: &mut LossWorkspace| {
+        let mut g = zero_grads(n);
+        batch_loss(n, &batch, &config.weights, ws, &mut g, Par::Seq)
+            .unwrap()
+            .total
+    };
+    assert!(loss(&nets, &mut ws) < 0.5 * loss(&fresh, &mut ws));
+}
+
+/// The pose cache: generated from the rig's fits, saved, loaded back identical; other
+/// settings or another face are not a match.
+#[test]
+fn pose_cache_round_trip() {
+    let s = sample();
+    let face = &s.faces[1];
+    let settings = PoseSettings {
+        single_weights: vec![],
+        combinations: 2,
+        styled_singles: 0,
+        seed: 4,
+    };
+    let poses =
+        FacePoses::generate(rig(), &face.model, face.style, 1, &settings, &|_, _| {}).unwrap();
+    assert_eq!(poses.poses.len(), 3);
+    // The rest pose fits to A ≈ I, the others move something.
+    assert!(poses.poses[0].logs.iter().flatten().all(|v| v.abs() < 1e-3));
+    assert!(poses.poses[1].logs.iter().flatten().any(|v| v.abs() > 1e-2));
+    let path = temp_dir("poses").join("f.poses");
+    assert!(
+        FacePoses::load_matching(&path, &face.model, &settings)
+            .unwrap()
+            .is_none()
+    );
+    poses.save(&path).unwrap();
+    let back = FacePoses::load_matching(&path, &face.model, &settings)
+        .unwrap()
+        .unwrap();
+    assert_eq!(back, poses);
+    let other = PoseSettings {
+        combinations: 3,
+        ..settings.clone()
+    };
+    assert!(
+        FacePoses::load_matching(&path, &face.model, &other)
+            .unwrap()
+            .is_none()
+    );
+    assert!(
+        FacePoses::load_matching(&path, &s.faces[2].model, &settings)
+            .unwrap()
+            .is_none()
+    );
+    std::fs::write(&path, b"garbage").unwrap();
+    assert!(FacePoses::load_matching(&path, &face.model, &settings).is_err());
+}
+
+/// Held-out codes are reproducible, none is a training code, and the evaluation runs both
+/// models on them and reports finite errors for the solved poses.
+#[test]
+fn held_out_codes_and_eval_run() {
+    let codes = held_out_codes(2, 1);
+    assert_eq!(codes, held_out_codes(2, 1));
+    let s = sample();
+    for (i, f) in s.faces.iter().enumerate() {
+        let train = training_codes(f.style, &PoseSettings::default(), i as u64);
+        assert!(train.iter().all(|t| !codes.contains(&t.expression)));
+    }
+    let f = &s.faces[0];
+    let nets = Arc::new(GenerativeNets::new(tiny(), frame(), 1).unwrap());
+    let g = GenerativeFace::new(nets, &f.model, None).unwrap();
+    let report = evaluate(
+        rig(),
+        &[EvalFace {
+            face: &f.model,
+            style: f.style,
+            models: vec![("networks", &g), ("basis", f.actuation.as_ref())],
+        }],
+        &codes,
+        &|_| {},
+    )
+    .unwrap();
+    assert_eq!(report.rows.len(), 2);
+    assert_eq!(report.poses.len(), 4);
+    let basis = &report.rows[1];
+    assert_eq!(basis.failed, 0, "{report:?}");
+    let (mean, max) = (basis.mean_mm.unwrap(), basis.max_mm.unwrap());
+    assert!(mean > 0.0 && mean < 2.0 && max >= mean, "{basis:?}");
+    assert!(
+        report.table().contains("| basis | 2/2 |"),
+        "{}",
+        report.table()
+    );
+    assert!(report.csv().lines().count() == 3);
+    let _ = ExpressionCode::LEN;
+}
+
+/// The bundled sample's trained networks load and drive every face: SPD tensors, a jaw that
+/// opens with jawOpen, and actuations that differ from the rest where the code moves the face.
+#[test]
+fn bundled_networks_drive_every_sample_face() {
+    let s = sample();
+    let models = super::load_sample_networks(s)
+        .unwrap()
+        .expect("sample_models/ict/generative.nn");
+    assert_eq!(models.len(), s.faces.len());
+    for (m, f) in models.iter().zip(&s.faces) {
+        assert_eq!(m.element_count(), f.model.mesh.element_count());
+        let open = Codes {
+            expression: ExpressionCode::single("jawOpen", 1.0).unwrap(),
+            style: f.style,
+        };
+        let a = m.actuate(&open).unwrap();
+        assert!(a.tensors.iter().all(|t| t.validate().is_ok()));
+        // The basis (fitted to the rig) and the networks agree on the jaw to a few mrad.
+        let b = f.actuation.actuate(&open).unwrap();
+        assert!(a.jaw.rotation.x > 0.05, "{}: {:?}", f.name, a.jaw);
+        assert!(
+            (a.jaw.rotation - b.jaw.rotation).norm() < 0.02,
+            "{}",
+            f.name
+        );
+    }
+}

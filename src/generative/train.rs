@@ -1,0 +1,376 @@
+//! Stage-1 training (no simulator): fit the networks to the per-pose actuations and jaw
+//! motions of [`super::data`] with the loss of [`super::loss`].
+//!
+//! Adam per network, the learning rate constant for the first half and then decaying
+//! linearly to 0 (the paper's shape). Iteration i draws its batch (poses, then elements per
+//! pose) from a stream seeded by (seed, i) alone, and the optimizer state is checkpointed with
+//! the networks, so a run resumed from a checkpoint is bitwise the run that never stopped.
+
+use faer::{Mat, Par};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+
+use super::GenerativeError;
+use super::data::FacePoses;
+use super::face::FaceWarp;
+use super::loss::{Batch, LossParts, LossWeights, LossWorkspace, batch_loss, zero_grads};
+use super::nets::{Architecture, CanonicalFrame, GenerativeNets, NET_NAMES, from_hex, to_hex};
+use crate::drive::Codes;
+use crate::nn::{Adam, AdamConfig, Checkpoint, LrSchedule};
+
+/// Stage-1 settings.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Stage1Config {
+    pub architecture: Architecture,
+    pub iterations: u64,
+    /// Poses per batch (the paper: 6).
+    pub batch_poses: usize,
+    /// Elements sampled per pose (0: all of the face's elements).
+    pub elements_per_pose: usize,
+    /// Peak learning rate.
+    pub learning_rate: f64,
+    /// Fraction of the iterations at the peak before the linear decay (the paper: 0.5).
+    pub decay_start_fraction: f64,
+    pub weights: LossWeights,
+    pub seed: u64,
+    /// Rows per chunk and lanes of the data-parallel gradient (fix the summation order).
+    pub chunk_rows: usize,
+    pub lanes: usize,
+}
+
+impl Default for Stage1Config {
+    fn default() -> Self {
+        Stage1Config {
+            architecture: Architecture::default(),
+            iterations: 6000,
+            batch_poses: 6,
+            elements_per_pose: 1024,
+            learning_rate: 1e-3,
+            decay_start_fraction: 0.5,
+            weights: LossWeights::default(),
+            seed: 1,
+            chunk_rows: 256,
+            lanes: 8,
+        }
+    }
+}
+
+/// One pose's labels in canonical space.
+#[derive(Clone, Debug)]
+pub struct PoseSample {
+    pub codes: Codes,
+    pub jaw: [f64; 6],
+    /// Canonical `log A` per element.
+    pub logs: Vec<[f32; 6]>,
+}
+
+/// One face's elements and poses.
+#[derive(Clone, Debug)]
+pub struct FaceData {
+    pub name: String,
+    pub warp: FaceWarp,
+    pub poses: Vec<PoseSample>,
+}
+
+/// Everything stage 1 trains on.
+#[derive(Clone, Debug)]
+pub struct Stage1Data {
+    pub faces: Vec<FaceData>,
+    /// (face, pose) of every training pose.
+    index: Vec<(usize, usize)>,
+}
+
+impl Stage1Data {
+    /// Rotates each face's material-space labels into canonical space with its warp.
+    pub fn new(faces: Vec<(FaceWarp, FacePoses)>) -> Result<Self, GenerativeError> {
+        let mut out = Vec::with_capacity(faces.len());
+        for (warp, poses) in faces {
+            if poses.element_count != warp.len() {
+                return Err(GenerativeError::Config(format!(
+                    "poses of {} have {} elements, its warp {}",
+                    poses.face,
+                    poses.element_count,
+                    warp.len()
+                )));
+            }
+            let samples = poses
+                .poses
+                .iter()
+                .map(|p| PoseSample {
+                    codes: p.codes,
+                    jaw: p.jaw,
+                    logs: p
+                        .logs
+                        .iter()
+                        .enumerate()
+                        .map(|(e, l)| warp.to_canonical(e, &l.map(f64::from)).map(|v| v as f32))
+                        .collect(),
+                })
+                .collect();
+            out.push(FaceData {
+                name: poses.face,
+                warp,
+                poses: samples,
+            });
+        }
+        let index: Vec<(usize, usize)> = out
+            .iter()
+            .enumerate()
+            .flat_map(|(f, d)| (0..d.poses.len()).map(move |p| (f, p)))
+            .collect();
+        if index.is_empty() {
+            return Err(GenerativeError::Config("no training poses".into()));
+        }
+        Ok(Stage1Data { faces: out, index })
+    }
+
+    pub fn pose_count(&self) -> usize {
+        self.index.len()
+    }
+
+    /// The batch of iteration `it` (module docs).
+    pub fn batch(&self, config: &Stage1Config, it: u64) -> Batch {
+        let mut rng = ChaCha8Rng::seed_from_u64(
+            config.seed ^ 0xba7c_4e55 ^ it.wrapping_mul(0x9e37_79b9_7f4a_7c15),
+        );
+        let b = config.batch_poses.min(self.index.len());
+        let picks = rand::seq::index::sample(&mut rng, self.index.len(), b).into_vec();
+        let (mut codes, mut counts, mut targets, mut jaw, mut rows) =
+            (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        for i in picks {
+            let (f, p) = self.index[i];
+            let face = &self.faces[f];
+            let pose = &face.poses[p];
+            let n = face.warp.len();
+            let m = config.elements_per_pose;
+            let mut elements = if m == 0 || m >= n {
+                (0..n).collect()
+            } else {
+                rand::seq::index::sample(&mut rng, n, m).into_vec()
+            };
+            elements.sort_unstable();
+            codes.push(pose.codes);
+            counts.push(elements.len());
+            jaw.push(pose.jaw);
+            for e in elements {
+                targets.push(pose.logs[e].map(f64::from));
+                rows.push(face.warp.canonical[e]);
+            }
+        }
+        Batch {
+            codes,
+            x: Mat::from_fn(rows.len(), 3, |i, k| rows[i][k]),
+            counts,
+            targets,
+            jaw,
+        }
+    }
+}
+
+/// One iteration of the loss curve.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct LossRow {
+    pub iteration: u64,
+    pub learning_rate: f64,
+    pub parts: LossParts,
+}
+
+/// The CSV header of the loss curve.
+pub const LOSS_CSV_HEADER: &str = "iteration,learning_rate,fit,jaw_cm2,act,lipschitz_product,total";
+
+impl LossRow {
+    /// One CSV line (no newline).
+    pub fn csv(&self) -> String {
+        let p = &self.parts;
+        format!(
+            "{},{:e},{:e},{:e},{:e},{:e},{:e}",
+            self.iteration, self.learning_rate, p.fit, p.jaw, p.act, p.lip, p.total
+        )
+    }
+}
+
+/// The training state: networks, optimizers, next iteration.
+pub struct Trainer<'a> {
+    data: &'a Stage1Data,
+    config: Stage1Config,
+    schedule: LrSchedule,
+    nets: GenerativeNets,
+    adams: Vec<Adam>,
+    iteration: u64,
+    ws: LossWorkspace,
+}
+
+const CONFIG_KEY: &str = "stage1_config";
+const ITERATION_KEY: &str = "stage1_iteration";
+
+impl<'a> Trainer<'a> {
+    /// A fresh run: networks initialized from the seed.
+    pub fn new(
+        data: &'a Stage1Data,
+        config: Stage1Config,
+        frame: CanonicalFrame,
+    ) -> Result<Self, GenerativeError> {
+        let nets = GenerativeNets::new(config.architecture, frame, config.seed)?;
+        let adams = nets
+            .nets()
+            .iter()
+            .map(|n| Adam::new(n.num_params(), AdamConfig::default()))
+            .collect::<Result<_, _>>()?;
+        Self::assemble(data, config, nets, adams, 0)
+    }
+
+    /// Continues the run saved in `ck` (by [`Trainer::checkpoint`]); the configuration must
+    /// be the saved one.
+    pub fn resume(
+        data: &'a Stage1Data,
+        config: Stage1Config,
+        ck: &Checkpoint,
+    ) -> Result<Self, GenerativeError> {
+        let meta = ck.metadata();
+        let saved: Stage1Config = meta
+            .get(CONFIG_KEY)
+            .ok_or_else(|| {
+                GenerativeError::Checkpoint("no stage-1 settings in the checkpoint".into())
+            })
+            .and_then(|s| {
+                serde_json::from_str(s)
+                    .map_err(|e| GenerativeError::Checkpoint(format!("stage-1 settings: {e}")))
+            })?;
+        if saved != config {
+            return Err(GenerativeError::Checkpoint(format!(
+                "the checkpoint was made with other settings: {saved:?}, now {config:?}"
+            )));
+        }
+        let iteration: u64 = meta
+            .get(ITERATION_KEY)
+            .and_then(|s| s.parse().ok())
+            .ok_or_else(|| GenerativeError::Checkpoint("no iteration in the checkpoint".into()))?;
+        let nets = GenerativeNets::from_checkpoint(ck)?;
+        let adams = NET_NAMES
+            .iter()
+            .map(|n| {
+                let hex = meta.get(&format!("adam_{n}")).ok_or_else(|| {
+                    GenerativeError::Checkpoint(format!("no optimizer state for {n}"))
+                })?;
+                from_hex::<Adam>(hex).map_err(|e| {
+                    GenerativeError::Checkpoint(format!("optimizer state of {n}: {e}"))
+                })
+            })
+            .collect::<Result<_, _>>()?;
+        Self::assemble(data, config, nets, adams, iteration)
+    }
+
+    fn assemble(
+        data: &'a Stage1Data,
+        config: Stage1Config,
+        nets: GenerativeNets,
+        adams: Vec<Adam>,
+        iteration: u64,
+    ) -> Result<Self, GenerativeError> {
+        if config.batch_poses == 0 {
+            return Err(GenerativeError::Config("batch of 0 poses".into()));
+        }
+        let w = &config.weights;
+        if !(w.lambda_act >= 0.0 && w.lambda_lip >= 0.0 && w.jaw_lever_cm > 0.0) {
+            return Err(GenerativeError::Config(format!("loss weights {w:?}")));
+        }
+        Ok(Trainer {
+            data,
+            schedule: LrSchedule::linear_decay(
+                config.learning_rate,
+                config.iterations,
+                config.decay_start_fraction,
+            )?,
+            ws: LossWorkspace::new(config.chunk_rows, config.lanes)?,
+            config,
+            nets,
+            adams,
+            iteration,
+        })
+    }
+
+    /// The next iteration to run.
+    pub fn iteration(&self) -> u64 {
+        self.iteration
+    }
+
+    pub fn done(&self) -> bool {
+        self.iteration >= self.config.iterations
+    }
+
+    pub fn nets(&self) -> &GenerativeNets {
+        &self.nets
+    }
+
+    pub fn into_nets(self) -> GenerativeNets {
+        self.nets
+    }
+
+    /// Runs one iteration.
+    pub fn step(&mut self) -> Result<LossRow, GenerativeError> {
+        let it = self.iteration;
+        let batch = self.data.batch(&self.config, it);
+        let mut grads = zero_grads(&self.nets);
+        let parts = batch_loss(
+            &self.nets,
+            &batch,
+            &self.config.weights,
+            &mut self.ws,
+            &mut grads,
+            Par::rayon(0),
+        )?;
+        if !parts.total.is_finite() || grads.iter().flatten().any(|g| !g.is_finite()) {
+            return Err(GenerativeError::Diverged(it));
+        }
+        let lr = self.schedule.lr_at(it);
+        for ((net, adam), g) in self
+            .nets
+            .nets_mut()
+            .into_iter()
+            .zip(&mut self.adams)
+            .zip(&grads)
+        {
+            adam.step(net.params_mut(), g, lr)?;
+        }
+        self.iteration += 1;
+        Ok(LossRow {
+            iteration: it,
+            learning_rate: lr,
+            parts,
+        })
+    }
+
+    /// Networks, optimizer states, settings and the next iteration.
+    pub fn checkpoint(&self) -> Checkpoint {
+        let mut ck = self.nets.to_checkpoint();
+        let meta = ck.metadata_mut();
+        // Optimizer states as exact bits (see `nets::to_hex`), not the kit's JSON numbers.
+        for (name, adam) in NET_NAMES.iter().zip(&self.adams) {
+            meta.insert(format!("adam_{name}"), to_hex(adam));
+        }
+        meta.insert(
+            CONFIG_KEY.into(),
+            serde_json::to_string(&self.config).expect("serializable"),
+        );
+        meta.insert(ITERATION_KEY.into(), self.iteration.to_string());
+        ck
+    }
+}
+
+/// Trains from scratch to the end; `progress` sees every row.
+pub fn train_stage1(
+    data: &Stage1Data,
+    config: Stage1Config,
+    frame: CanonicalFrame,
+    mut progress: impl FnMut(&LossRow),
+) -> Result<(GenerativeNets, Vec<LossRow>), GenerativeError> {
+    let mut t = Trainer::new(data, config, frame)?;
+    let mut rows = Vec::new();
+    while !t.done() {
+        let row = t.step()?;
+        progress(&row);
+        rows.push(row);
+    }
+    Ok((t.into_nets(), rows))
+}
