@@ -20,8 +20,11 @@ fn main() -> anyhow::Result<()> {
         .join("..")
         .join(facesim::sample::SAMPLE_DIR);
     for quality in Quality::ALL {
-        let session: Arc<dyn SessionHandle> =
-            Arc::new(facesim_ui::faces::open_sample_session(&dir, quality)?);
+        let session: Arc<dyn SessionHandle> = Arc::new(facesim_ui::faces::open_sample_session(
+            &dir,
+            quality,
+            facesim_ui::faces::Actuation::Basis,
+        )?);
         let mut harness = Harness::builder()
             .with_size(egui::vec2(1400.0, 900.0))
             .build_eframe(|cc| EditorApp::new(cc, session.clone()));

@@ -9,19 +9,41 @@ use facesim::sim::Quality;
 /// The bundled sample, relative to the repository root.
 pub const SAMPLE_DIR: &str = facesim::sample::SAMPLE_DIR;
 
-/// A session on every face of the sample at `dir`, with φ's heatmaps next to the built-in
-/// ones.
-pub fn open_sample_session(dir: &Path, quality: Quality) -> Result<Session> {
+/// What turns the sliders into actuations.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
+pub enum Actuation {
+    /// Each face's fitted per-shape basis (the per-identity model; the more accurate today).
+    #[default]
+    Basis,
+    /// The trained expression/style networks through each identity's φ (the implicit model,
+    /// `generative.nn` of the sample).
+    Networks,
+}
+
+/// A session on every face of the sample at `dir`, driven by `actuation`, with φ's heatmaps
+/// next to the built-in ones.
+pub fn open_sample_session(dir: &Path, quality: Quality, actuation: Actuation) -> Result<Session> {
     let sample = facesim::sample::Sample::load(dir)
         .with_context(|| format!("opening the sample at {}", dir.display()))?;
     let sources = sample
         .field_sources()
         .context("computing the mapping heatmaps")?;
-    Ok(Session::with_field_sources(
-        sample.session_faces(),
-        quality,
-        sources,
-    )?)
+    let mut faces = sample.session_faces();
+    if actuation == Actuation::Networks {
+        let models = facesim::generative::face::load_sample_networks(&sample)
+            .context("loading the sample's networks")?
+            .with_context(|| {
+                format!(
+                    "{} has no trained networks ({}); train them with `facesim train --stage 1`",
+                    dir.display(),
+                    facesim::generative::face::SAMPLE_NETWORKS
+                )
+            })?;
+        for (face, model) in faces.iter_mut().zip(models) {
+            face.actuation = model;
+        }
+    }
+    Ok(Session::with_field_sources(faces, quality, sources)?)
 }
 
 /// Every face of the sample at `dir`, with its fitted actuation model.

@@ -34,6 +34,9 @@ struct Cli {
     /// Quality preset to start with.
     #[arg(long, default_value = "interactive", global = true)]
     quality: Quality,
+    /// What the sliders drive: the fitted per-shape bases or the trained networks.
+    #[arg(long, value_enum, default_value_t = faces::Actuation::Basis, global = true)]
+    actuation: faces::Actuation,
 }
 
 #[derive(Subcommand)]
@@ -87,7 +90,11 @@ fn main() -> Result<()> {
             Ok(())
         }
         Some(Command::Serve { listen }) => {
-            let session = Arc::new(faces::open_sample_session(&cli.sample, cli.quality)?);
+            let session = Arc::new(faces::open_sample_session(
+                &cli.sample,
+                cli.quality,
+                cli.actuation,
+            )?);
             if let Some(t) = &rerun {
                 attach_rerun(session.as_ref(), t)?;
             }
@@ -100,7 +107,11 @@ fn main() -> Result<()> {
         None => {
             let session: Arc<dyn SessionHandle> = match &cli.remote {
                 Some(addr) => Arc::new(RemoteSession::connect(addr)?),
-                None => Arc::new(faces::open_sample_session(&cli.sample, cli.quality)?),
+                None => Arc::new(faces::open_sample_session(
+                    &cli.sample,
+                    cli.quality,
+                    cli.actuation,
+                )?),
             };
             if let Some(t) = &rerun {
                 attach_rerun(session.as_ref(), t)?;

@@ -35,6 +35,27 @@ fn wait_for(harness: &mut Harness<'_, EditorApp>, done: impl Fn(&EditorApp) -> b
 fn moving_the_jaw_slider_changes_the_face_on_screen() {
     let session: Arc<dyn SessionHandle> =
         Arc::new(Session::new(sample(), Quality::Interactive).unwrap());
+    jaw_slider_changes_the_face(session);
+}
+
+/// The same with the trained expression/style networks driving the face.
+#[test]
+fn the_networks_drive_the_face_from_the_slider() {
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("..")
+        .join(facesim::sample::SAMPLE_DIR);
+    let session: Arc<dyn SessionHandle> = Arc::new(
+        facesim_ui::faces::open_sample_session(
+            &dir,
+            Quality::Interactive,
+            facesim_ui::faces::Actuation::Networks,
+        )
+        .unwrap(),
+    );
+    jaw_slider_changes_the_face(session);
+}
+
+fn jaw_slider_changes_the_face(session: Arc<dyn SessionHandle>) {
     let mut harness = Harness::builder()
         .with_size(egui::vec2(1200.0, 800.0))
         .wgpu()
@@ -65,6 +86,7 @@ fn moving_the_jaw_slider_changes_the_face_on_screen() {
         .map(|(a, b)| (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f32>().sqrt())
         .fold(0.0f32, f32::max);
     assert!(moved > 0.3, "the jaw must move the face (max {moved} cm)");
+    assert!(after_frame.error.is_none(), "{:?}", after_frame.error);
     let changed = before
         .pixels()
         .zip(after.pixels())
@@ -83,8 +105,14 @@ fn the_mapping_heatmap_colours_the_identity_on_screen() {
     let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
         .join("..")
         .join(facesim::sample::SAMPLE_DIR);
-    let session: Arc<dyn SessionHandle> =
-        Arc::new(facesim_ui::faces::open_sample_session(&dir, Quality::Interactive).unwrap());
+    let session: Arc<dyn SessionHandle> = Arc::new(
+        facesim_ui::faces::open_sample_session(
+            &dir,
+            Quality::Interactive,
+            facesim_ui::faces::Actuation::Basis,
+        )
+        .unwrap(),
+    );
     session
         .submit(&[facesim::session::Request::Face(1)])
         .unwrap();
