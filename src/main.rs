@@ -107,6 +107,10 @@ enum BenchTarget {
         /// intersections and the median frame time.
         #[arg(long)]
         sweep: Option<usize>,
+        /// With `--sweep`: `contact` (on), `no-contact` (what the codes alone do) or `compare`
+        /// (both from the same start each frame: which failures contact causes).
+        #[arg(long, default_value = "contact")]
+        sweep_mode: String,
     },
 }
 
@@ -130,9 +134,19 @@ fn main() -> Result<()> {
                 BenchTarget::Contact {
                     json,
                     sweep: Some(count),
+                    sweep_mode,
                     ..
                 },
         } => {
+            use facesim::bench::contact_sweep::SweepMode;
+            let mode = match sweep_mode.as_str() {
+                "contact" => SweepMode::Contact,
+                "no-contact" => SweepMode::NoContact,
+                "compare" => SweepMode::Compare,
+                other => anyhow::bail!(
+                    "unknown --sweep-mode '{other}' (expected contact, no-contact or compare)"
+                ),
+            };
             let sample = facesim::sample::Sample::load(facesim::sample::SAMPLE_DIR)
                 .context("loading the bundled sample (run from the repository root)")?;
             let face = sample
@@ -141,7 +155,7 @@ fn main() -> Result<()> {
                 .find(|f| f.identity.is_none())
                 .context("the sample has no neutral face")?;
             eprintln!(
-                "sweeping {count} random codes on {} (interactive, contact on)…",
+                "sweeping {count} random codes on {} (interactive, {sweep_mode})…",
                 face.name
             );
             let codes = facesim::bench::contact_sweep::random_codes(count, 1);
@@ -150,9 +164,10 @@ fn main() -> Result<()> {
                 face.actuation.as_ref(),
                 &codes,
                 facesim::sim::Quality::Interactive,
+                mode,
             )
             .context("contact sweep")?;
-            println!("{report:#?}");
+            print!("{}", report.summary());
             if let Some(path) = json {
                 std::fs::write(&path, serde_json::to_string_pretty(&report)?)
                     .with_context(|| format!("writing {}", path.display()))?;
@@ -166,6 +181,7 @@ fn main() -> Result<()> {
                     frames,
                     json,
                     sweep: None,
+                    ..
                 },
         } => {
             let face = match model {

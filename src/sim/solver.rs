@@ -623,6 +623,7 @@ fn merge_stages(last: &mut SolveStats, earlier: Option<SolveStats>, stages: usiz
     if let (Some(c), Some(ec)) = (last.contact.as_mut(), e.contact) {
         c.ccd_limited_steps += ec.ccd_limited_steps;
         c.candidate_builds += ec.candidate_builds;
+        c.candidate_pairs += ec.candidate_pairs;
         c.broad_phase_time += ec.broad_phase_time;
         c.barrier_time += ec.barrier_time;
         c.ccd_time += ec.ccd_time;
