@@ -111,6 +111,9 @@ enum BenchTarget {
         /// (both from the same start each frame: which failures contact causes).
         #[arg(long, default_value = "contact")]
         sweep_mode: String,
+        /// With `--sweep`: the sliders' range, `LOW,HIGH`.
+        #[arg(long, default_value = "-0.5,1.5")]
+        sweep_range: String,
     },
 }
 
@@ -135,9 +138,19 @@ fn main() -> Result<()> {
                     json,
                     sweep: Some(count),
                     sweep_mode,
+                    sweep_range,
                     ..
                 },
         } => {
+            let (low, high) = sweep_range
+                .split_once(',')
+                .and_then(|(a, b)| {
+                    Some((a.trim().parse::<f64>().ok()?, b.trim().parse::<f64>().ok()?))
+                })
+                .filter(|(a, b)| a.is_finite() && b.is_finite() && a <= b)
+                .with_context(|| {
+                    format!("--sweep-range must be LOW,HIGH with LOW ≤ HIGH, got '{sweep_range}'")
+                })?;
             use facesim::bench::contact_sweep::SweepMode;
             let mode = match sweep_mode.as_str() {
                 "contact" => SweepMode::Contact,
@@ -155,10 +168,10 @@ fn main() -> Result<()> {
                 .find(|f| f.identity.is_none())
                 .context("the sample has no neutral face")?;
             eprintln!(
-                "sweeping {count} random codes on {} (interactive, {sweep_mode})…",
+                "sweeping {count} random codes in [{low}, {high}] on {} (interactive, {sweep_mode})…",
                 face.name
             );
-            let codes = facesim::bench::contact_sweep::random_codes(count, 1);
+            let codes = facesim::bench::contact_sweep::random_codes_in(count, 1, low, high);
             let report = facesim::bench::contact_sweep::sweep(
                 &face.model,
                 face.actuation.as_ref(),

@@ -128,12 +128,17 @@ impl SweepReport {
 
 /// The expression codes of the sweep: `count` codes, each slider uniform in `[-0.5, 1.5]`.
 pub fn random_codes(count: usize, seed: u64) -> Vec<Codes> {
+    random_codes_in(count, seed, -0.5, 1.5)
+}
+
+/// `count` codes, each slider uniform in `[low, high]` (`low ≤ high`).
+pub fn random_codes_in(count: usize, seed: u64, low: f64, high: f64) -> Vec<Codes> {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     (0..count)
         .map(|_| {
             let mut codes = Codes::default();
             for w in codes.expression.0.iter_mut().take(ExpressionCode::LEN) {
-                *w = rng.random_range(-0.5..=1.5);
+                *w = rng.random_range(low..=high);
             }
             codes
         })
@@ -285,6 +290,13 @@ mod tests {
         let face = sample.faces.iter().find(|f| f.identity.is_none()).unwrap();
         let codes = random_codes(4, 11);
         assert_eq!(codes, random_codes(4, 11), "the sweep is seeded");
+        let narrow = random_codes_in(4, 11, 0.0, 0.5);
+        assert!(
+            narrow
+                .iter()
+                .all(|c| c.expression.0.iter().all(|w| (0.0..=0.5).contains(w)))
+        );
+        assert_ne!(narrow, codes);
         assert!(
             codes
                 .iter()
