@@ -94,8 +94,8 @@ pub struct ContactStats {
     /// Pairs that CCD and the line-search barrier checked, summed over steps (the pairs
     /// that can come within d̂ during each step).
     pub candidate_pairs: usize,
-    /// Time building candidate pairs (BVH over grown boxes) and checking they still cover
-    /// the step.
+    /// Time building Verlet lists (BVH over grown boxes, the pairs' distances), checking
+    /// they still cover the step, and filtering each step's pairs from them.
     pub broad_phase_time: Duration,
     /// Time evaluating the barrier (active sets, value, gradient, Hessian, PSD projection).
     pub barrier_time: Duration,
