@@ -93,6 +93,7 @@ pub struct ContactStats {
     pub candidate_builds: usize,
     /// Pairs that CCD and the line-search barrier checked, summed over steps (the pairs
     /// that can come within d̂ during each step).
+    #[serde(default)]
     pub candidate_pairs: usize,
     /// Time building Verlet lists (BVH over grown boxes, the pairs' distances), checking
     /// they still cover the step, and filtering each step's pairs from them.
