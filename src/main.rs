@@ -137,6 +137,13 @@ enum BenchTarget {
         /// intersections and the median frame time.
         #[arg(long)]
         sweep: Option<usize>,
+        /// With `--sweep`: `contact` (on), `no-contact` (what the codes alone do) or `compare`
+        /// (both from the same start each frame: which failures contact causes).
+        #[arg(long, default_value = "contact")]
+        sweep_mode: String,
+        /// With `--sweep`: the sliders' range, `LOW,HIGH`.
+        #[arg(long, default_value = "-0.5,1.5")]
+        sweep_range: String,
     },
 }
 
@@ -172,9 +179,29 @@ fn main() -> Result<()> {
                 BenchTarget::Contact {
                     json,
                     sweep: Some(count),
+                    sweep_mode,
+                    sweep_range,
                     ..
                 },
         } => {
+            let (low, high) = sweep_range
+                .split_once(',')
+                .and_then(|(a, b)| {
+                    Some((a.trim().parse::<f64>().ok()?, b.trim().parse::<f64>().ok()?))
+                })
+                .filter(|(a, b)| a.is_finite() && b.is_finite() && a <= b)
+                .with_context(|| {
+                    format!("--sweep-range must be LOW,HIGH with LOW ≤ HIGH, got '{sweep_range}'")
+                })?;
+            use facesim::bench::contact_sweep::SweepMode;
+            let mode = match sweep_mode.as_str() {
+                "contact" => SweepMode::Contact,
+                "no-contact" => SweepMode::NoContact,
+                "compare" => SweepMode::Compare,
+                other => anyhow::bail!(
+                    "unknown --sweep-mode '{other}' (expected contact, no-contact or compare)"
+                ),
+            };
             let sample = facesim::sample::Sample::load(facesim::sample::SAMPLE_DIR)
                 .context("loading the bundled sample (run from the repository root)")?;
             let face = sample
@@ -183,18 +210,19 @@ fn main() -> Result<()> {
                 .find(|f| f.identity.is_none())
                 .context("the sample has no neutral face")?;
             eprintln!(
-                "sweeping {count} random codes on {} (interactive, contact on)…",
+                "sweeping {count} random codes in [{low}, {high}] on {} (interactive, {sweep_mode})…",
                 face.name
             );
-            let codes = facesim::bench::contact_sweep::random_codes(count, 1);
+            let codes = facesim::bench::contact_sweep::random_codes_in(count, 1, low, high);
             let report = facesim::bench::contact_sweep::sweep(
                 &face.model,
                 face.actuation.as_ref(),
                 &codes,
                 facesim::sim::Quality::Interactive,
+                mode,
             )
             .context("contact sweep")?;
-            println!("{report:#?}");
+            print!("{}", report.summary());
             if let Some(path) = json {
                 std::fs::write(&path, serde_json::to_string_pretty(&report)?)
                     .with_context(|| format!("writing {}", path.display()))?;
@@ -208,6 +236,7 @@ fn main() -> Result<()> {
                     frames,
                     json,
                     sweep: None,
+                    ..
                 },
         } => {
             let face = match model {

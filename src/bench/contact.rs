@@ -32,6 +32,10 @@ pub struct ContactBenchRow {
     pub ccd_ms: f64,
     pub linear_ms: f64,
     pub active_pairs: f64,
+    /// Candidate lists built per frame (broad-phase runs).
+    pub candidate_builds: f64,
+    /// Pairs CCD and the line-search barrier checked per step.
+    pub near_pairs: f64,
 }
 
 /// The drag's pose at frame `k` of `count`.
@@ -96,6 +100,16 @@ pub fn bench(model: &FaceModel, frames: usize) -> Result<Vec<ContactBenchRow>, S
             ccd_ms: contact_ms(&|c| c.ccd_time),
             linear_ms: contact_ms(&|c| c.linear_time),
             active_pairs: per(&|s| s.contact.as_ref().map_or(0.0, |c| c.active_pairs as f64)),
+            candidate_builds: per(&|s| {
+                s.contact
+                    .as_ref()
+                    .map_or(0.0, |c| c.candidate_builds as f64)
+            }),
+            near_pairs: per(&|s| {
+                s.contact.as_ref().map_or(0.0, |c| {
+                    c.candidate_pairs as f64 / (s.iterations.max(1) as f64)
+                })
+            }),
         }
     };
     for quality in Quality::ALL {
@@ -116,11 +130,11 @@ pub fn bench(model: &FaceModel, frames: usize) -> Result<Vec<ContactBenchRow>, S
 /// The rows as a Markdown table.
 pub fn table(rows: &[ContactBenchRow]) -> String {
     let mut out = String::from(
-        "| preset | contact | step | frames ok | converged | frame ms | iterations | broad phase ms | barrier ms | CCD ms | linear ms | active pairs |\n|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+        "| preset | contact | step | frames ok | converged | frame ms | iterations | broad phase ms | barrier ms | CCD ms | linear ms | active pairs | lists built | pairs per step |\n|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
     );
     for r in rows {
         out += &format!(
-            "| {} | {} | {} | {}/{} | {} | {:.1} | {:.0} | {:.1} | {:.1} | {:.1} | {:.1} | {:.0} |\n",
+            "| {} | {} | {} | {}/{} | {} | {:.1} | {:.0} | {:.1} | {:.1} | {:.1} | {:.1} | {:.0} | {:.0} | {:.0} |\n",
             r.quality,
             if r.contact { "on" } else { "off" },
             r.step.map_or("-".to_string(), |s| format!("{s:?}")),
@@ -134,6 +148,8 @@ pub fn table(rows: &[ContactBenchRow]) -> String {
             r.ccd_ms,
             r.linear_ms,
             r.active_pairs,
+            r.candidate_builds,
+            r.near_pairs,
         );
     }
     for q in Quality::ALL {

@@ -30,9 +30,10 @@ pub mod mesh;
 pub mod potential;
 #[cfg(test)]
 mod test_scenes;
+pub mod verlet;
 
 pub use barrier::{barrier, barrier_first_derivative, barrier_second_derivative};
-pub use candidates::{Candidates, EdgeEdgeCandidate, PointTriangleCandidate};
+pub use candidates::{Candidates, EdgeEdgeCandidate, FixedPrimitives, PointTriangleCandidate};
 pub use ccd::{CcdOptions, CcdOutcome, StepReport, collision_free_step, collision_free_step_over};
 pub use collisions::CollisionType;
 pub use collisions::{Collision, CollisionKind, Collisions};
@@ -42,6 +43,7 @@ pub use mesh::ContactMesh;
 pub use potential::{
     BarrierPotential, HessianBlock, Projection, add_hessian_product, assemble_dense,
 };
+pub use verlet::VerletList;
 
 /// Errors at the contact module's boundary.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]

@@ -50,6 +50,15 @@ impl Box3 {
         }
     }
 
+    /// This box grown by `margin` on every side.
+    pub fn grown(&self, margin: f64) -> Self {
+        let m = nalgebra::Vector3::repeat(margin);
+        Self {
+            min: self.min - m,
+            max: self.max + m,
+        }
+    }
+
     /// Whether two boxes overlap (touching counts).
     pub fn overlaps(&self, other: &Box3) -> bool {
         (0..3).all(|k| self.min[k] <= other.max[k] && other.min[k] <= self.max[k])
@@ -79,6 +88,8 @@ pub struct BoxTree {
 }
 
 impl BoxTree {
+    /// Binned SAH build: parry's PLOC build made the contact bench's broad phase ~1.45×
+    /// slower (`facesim bench contact`, interleaved runs).
     pub fn new(boxes: &[Box3]) -> Self {
         let leaves: Vec<Aabb> = boxes.iter().map(|b| b.to_parry()).collect();
         Self {

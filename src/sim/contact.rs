@@ -13,10 +13,16 @@
 //!   [`ContactStep::Refactor`] instead factors the full `3n × 3n` matrix `L⊗I₃ + K` at every
 //!   step: `facesim bench contact` measures both (the low-rank update is the default because
 //!   it is faster).
-//! - **Line search**: each step's candidate pairs come from boxes swept along the step and
-//!   grown by d̂; additive CCD over them caps the step so no pair ever reaches distance 0, and
-//!   the barrier of every trial is evaluated over the same candidates (so no pair that comes
-//!   within d̂ during the step is missed).
+//! - **Line search**: each step's candidate pairs come from a Verlet list
+//!   ([`crate::contact::VerletList`]: pairs with their distance where the list was built,
+//!   rebuilt when a vertex leaves its slack, or built from boxes swept along a long step),
+//!   filtered to the pairs whose distance minus their relative motion along the step is
+//!   below d̂ — on the face a few hundred of the ~10⁵ pairs whose boxes overlap. Additive CCD
+//!   over them caps the step so no pair ever reaches distance 0, and the barrier of every
+//!   trial is evaluated over the same pairs (so no pair that comes within d̂ during the step
+//!   is missed). The teeth's broad-phase trees ([`crate::contact::FixedPrimitives`]) are
+//!   built once per solve (the bones are fixed during it); only the soft primitives' trees
+//!   are rebuilt.
 //! - **Stiffness**: κ starts where the barrier gradient balances the elastic one (ipc-toolkit's
 //!   rule, with the mean diagonal of `L` over the contact region as the stiffness scale) and
 //!   doubles while the closest pair keeps approaching at a tiny distance.
@@ -37,17 +43,20 @@ use super::global_matrix::{GlobalMatrix, SolveScratch};
 use crate::contact::barrier::{initial_barrier_stiffness, update_barrier_stiffness};
 use crate::contact::face::{ContactBinding, FaceContact};
 use crate::contact::{
-    BarrierPotential, Candidates, CcdOptions, Collisions, ContactError, HessianBlock, Projection,
-    collision_free_step_over,
+    BarrierPotential, Candidates, CcdOptions, Collisions, ContactError, FixedPrimitives,
+    HessianBlock, Projection, VerletList, collision_free_step_over,
 };
 
 /// Longest move of a contact vertex in one line-search step (cm, ≈ 3.4·d̂ on the neutral
 /// face). Shorter than the 0.25 it was: the swept boxes of long steps overlap so many
 /// primitives that the broad phase and CCD cost more than the extra steps
 /// (`facesim bench contact`: interactive 124× → 71× the contact-free frame, 30 → 15
-/// iterations; 0.05 stalls the interactive solve).
+/// iterations; 0.05 stalls the interactive solve). Re-measured with the filtered Verlet
+/// lists: 0.05 left an interactive frame failing, 0.2 doubled the frame time.
 const MAX_CONTACT_MOVE: f64 = 0.1;
-/// Smallest Verlet-list slack δ, in units of d̂.
+/// Verlet-list slack δ, in units of d̂. Measured with the filtered lists (interactive
+/// preset): 0.5 and 1 are alike, 2 is 1.5× and 3.5 or 6 are 4× slower per frame (the
+/// list's reach `d̂ + 2δ` holds many more neighbouring pairs to enumerate).
 const VERLET_SLACK: f64 = 1.0;
 /// Advances per pair in the additive CCD; a capped pair keeps the (safe) time it reached.
 const CCD_MAX_ITERATIONS: u64 = 200;
@@ -82,8 +91,12 @@ pub struct ContactStats {
     pub new_crossings: usize,
     /// Candidate lists built (the rest of the steps reused one).
     pub candidate_builds: usize,
-    /// Time building candidate pairs (BVH over grown boxes) and checking they still cover
-    /// the step.
+    /// Pairs that CCD and the line-search barrier checked, summed over steps (the pairs
+    /// that can come within d̂ during each step).
+    #[serde(default)]
+    pub candidate_pairs: usize,
+    /// Time building Verlet lists (BVH over grown boxes, the pairs' distances), checking
+    /// they still cover the step, and filtering each step's pairs from them.
     pub broad_phase_time: Duration,
     /// Time evaluating the barrier (active sets, value, gradient, Hessian, PSD projection).
     pub barrier_time: Duration,
@@ -253,8 +266,11 @@ pub(crate) struct ContactSolve<'a> {
     /// The current step: `W·d`, its candidates, the trial positions and active set.
     dy: Vec<f64>,
     candidates: Candidates,
-    /// Where the candidates were built and the slack δ they allow.
-    verlet: Option<(Vec<f64>, f64)>,
+    /// The Verlet list the step's candidates are filtered from.
+    verlet: Option<VerletList>,
+    /// Broad-phase trees over the rigid primitives (the teeth), built once: the bones are
+    /// fixed during a solve, so only the soft primitives' trees are rebuilt per step.
+    fixed: FixedPrimitives,
     y_trial: Vec<f64>,
     trial_collisions: Collisions,
     trial_barrier: f64,
@@ -276,7 +292,10 @@ impl<'a> ContactSolve<'a> {
         model.face.positions(x, bones, &mut y);
         let dhat = model.face.dhat();
         let t = Instant::now();
-        let collisions = Collisions::build(model.face.mesh(), &y, dhat)?;
+        let mesh = model.face.mesh();
+        let fixed = FixedPrimitives::new(mesh, &y)?;
+        let candidates = Candidates::build_with(mesh, &fixed, &y, dhat)?;
+        let collisions = Collisions::from_candidates(mesh, &candidates, &y, dhat)?;
         let broad = t.elapsed();
         let t = Instant::now();
         let unit = BarrierPotential::new(dhat, 1.0)?;
@@ -310,6 +329,7 @@ impl<'a> ContactSolve<'a> {
             dy: vec![0.0; 3 * m],
             candidates: Candidates::default(),
             verlet: None,
+            fixed,
             y_trial: vec![0.0; 3 * m],
             trial_collisions: Collisions::default(),
             trial_barrier: 0.0,
@@ -351,9 +371,11 @@ impl<'a> ContactSolve<'a> {
     /// local).
     ///
     /// Candidates are kept between steps (a Verlet list): they are built at positions `y₀`
-    /// with boxes grown by `d̂ + 2δ`, which covers every pair that can come within d̂ while
-    /// each vertex stays within `δ` (per coordinate) of `y₀`. A step is checked against that
-    /// and the list is rebuilt only when some vertex would leave its slack.
+    /// (pairs closer than `d̂ + 2δ`, with their distances), which covers every pair that can
+    /// come within d̂ while each vertex stays within `δ` of `y₀`. A step is checked against
+    /// that and the list is rebuilt only when some vertex would leave its slack; a step
+    /// longer than δ gets a list of its own from swept boxes. CCD and the trials' barrier
+    /// then use only the list's pairs that can come within d̂ along this step.
     pub(crate) fn max_step(&mut self, d: &[f64]) -> Result<f64, ContactError> {
         self.model.face.displacement(d, &mut self.dy);
         let longest = self
@@ -368,33 +390,25 @@ impl<'a> ContactSolve<'a> {
         };
         let swept: Vec<f64> = self.dy.iter().map(|v| cap * v).collect();
         let mesh = self.model.face.mesh();
+        let dhat = self.potential.dhat;
         let t = Instant::now();
-        let inside = |slack: f64, from: &[f64]| {
-            self.y
-                .iter()
-                .zip(&swept)
-                .zip(from)
-                .all(|((y, s), y0)| (y - y0).abs() <= slack && (y + s - y0).abs() <= slack)
-        };
         let valid = self
             .verlet
             .as_ref()
-            .is_some_and(|(from, slack)| inside(*slack, from));
+            .is_some_and(|list| list.covers(&self.y, &swept));
         if !valid {
-            let step = swept.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-            let slack = VERLET_SLACK * self.potential.dhat;
-            if step <= slack {
-                self.candidates =
-                    Candidates::build(mesh, &self.y, self.potential.dhat + 2.0 * slack)?;
-                self.verlet = Some((self.y.clone(), slack));
+            let slack = VERLET_SLACK * dhat;
+            self.verlet = Some(if cap * longest <= slack {
+                VerletList::build(mesh, &self.fixed, &self.y, dhat, slack)?
             } else {
-                // A long step: candidates for this step alone (swept boxes grown by d̂).
-                self.candidates =
-                    Candidates::build_swept(mesh, &self.y, &swept, self.potential.dhat)?;
-                self.verlet = None;
-            }
+                // A long step: a list for this step alone (swept boxes grown by d̂).
+                VerletList::build_swept(mesh, &self.fixed, &self.y, &swept, dhat)?
+            });
             self.stats.candidate_builds += 1;
         }
+        let list = self.verlet.as_ref().expect("built above");
+        self.candidates = list.near(mesh, &self.y, &swept, dhat)?;
+        self.stats.candidate_pairs += self.candidates.len();
         self.stats.broad_phase_time += t.elapsed();
         let t = Instant::now();
         let report = collision_free_step_over(

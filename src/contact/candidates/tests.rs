@@ -221,3 +221,47 @@ fn split_groups_and_exclusions_miss_no_allowed_pair() {
     assert!(c2.point_triangle.binary_search(&p0).is_err());
     assert!(c2.edge_edge.binary_search(&e0).is_err());
 }
+
+/// With the rigid stripes' trees built once ([`FixedPrimitives`]), static and swept
+/// candidates are the same lists as built from scratch, and the fixed vertices may not move.
+#[test]
+fn fixed_trees_give_the_same_candidates_and_refuse_moved_vertices() {
+    let (x, faces) = two_sheets(9, 0.03, [0.013, -0.021], 0.3, 0.01, 7);
+    let n = x.len() / 3;
+    let group: Vec<u16> = (0..n).map(|v| (v % 3) as u16).collect();
+    let matrix = [
+        vec![true, true, true],
+        vec![true, false, false],
+        vec![true, false, false],
+    ];
+    let mesh = ContactMesh::with_groups(&x, faces, group.clone(), &matrix).unwrap();
+    let fixed = FixedPrimitives::new(&mesh, &x).unwrap();
+    assert!(fixed.vertex_count() > 0);
+    let dhat = 0.05;
+    let plain = Candidates::build(&mesh, &x, dhat).unwrap();
+    let with = Candidates::build_with(&mesh, &fixed, &x, dhat).unwrap();
+    assert!(!plain.point_triangle.is_empty() && !plain.edge_edge.is_empty());
+    assert_eq!(plain, with);
+    // A step that moves only the soft vertices toward the other sheet.
+    let dx: Vec<f64> = (0..x.len())
+        .map(|i| {
+            let v = i / 3;
+            if group[v] == 0 && i % 3 == 2 {
+                -0.02 * ((v % 5) as f64 + 1.0)
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    let plain = Candidates::build_swept(&mesh, &x, &dx, dhat).unwrap();
+    let with = Candidates::build_swept_with(&mesh, &fixed, &x, &dx, dhat).unwrap();
+    assert_eq!(plain, with);
+    // Moving a fixed vertex (in the step or in the positions) is refused.
+    let rigid = (0..n).find(|&v| group[v] != 0).unwrap();
+    let mut bad = dx.clone();
+    bad[3 * rigid] = 0.01;
+    assert!(Candidates::build_swept_with(&mesh, &fixed, &x, &bad, dhat).is_err());
+    let mut moved = x.clone();
+    moved[3 * rigid] += 0.01;
+    assert!(Candidates::build_with(&mesh, &fixed, &moved, dhat).is_err());
+}

@@ -1,0 +1,111 @@
+//! Verlet lists against brute force: every pair that comes within d̂ anywhere along a step
+//! is among the near pairs, and pairs that move together are filtered out.
+
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+use super::*;
+use crate::contact::test_scenes::{two_sheet_mesh, two_sheets};
+
+/// Allowed pairs closer than `within` at `y`, by brute force.
+fn close_pairs(mesh: &ContactMesh, y: &[f64], within: f64) -> Vec<(bool, u32, u32)> {
+    let all = Candidates::build(mesh, y, 10.0).unwrap();
+    let faces = mesh.faces();
+    let edges = mesh.edges();
+    let mut out = Vec::new();
+    for c in &all.point_triangle {
+        let f = faces[c.face as usize];
+        if Stencil::PointTriangle([c.vertex, f[0], f[1], f[2]]).distance(y) < within {
+            out.push((true, c.vertex, c.face));
+        }
+    }
+    for c in &all.edge_edge {
+        let [a0, a1] = edges[c.edge_a as usize];
+        let [b0, b1] = edges[c.edge_b as usize];
+        if Stencil::EdgeEdge([a0, a1, b0, b1]).distance(y) < within {
+            out.push((false, c.edge_a, c.edge_b));
+        }
+    }
+    out
+}
+
+fn contains(c: &Candidates, p: &(bool, u32, u32)) -> bool {
+    match p {
+        (true, v, f) => c
+            .point_triangle
+            .binary_search(&crate::contact::PointTriangleCandidate {
+                vertex: *v,
+                face: *f,
+            })
+            .is_ok(),
+        (false, a, b) => c
+            .edge_edge
+            .binary_search(&crate::contact::EdgeEdgeCandidate {
+                edge_a: *a,
+                edge_b: *b,
+            })
+            .is_ok(),
+    }
+}
+
+#[test]
+fn near_pairs_hold_every_pair_within_dhat_along_the_step() {
+    let (y, faces) = two_sheets(8, 0.06, [0.011, -0.017], 0.2, 0.01, 3);
+    let mesh = two_sheet_mesh(&y, &faces);
+    let fixed = FixedPrimitives::new(&mesh, &y).unwrap();
+    let (dhat, slack) = (0.03, 0.05);
+    let list = VerletList::build(&mesh, &fixed, &y, dhat, slack).unwrap();
+    let mut rng = ChaCha8Rng::seed_from_u64(5);
+    let mut checked = 0;
+    for trial in 0..6 {
+        // Start and end of the step within the slack; the sheets pushed together.
+        let mut at = y.clone();
+        let mut dy = vec![0.0; y.len()];
+        for (i, (p, d)) in at.iter_mut().zip(dy.iter_mut()).enumerate() {
+            let toward = if i % 3 == 2 && i / 3 < 64 { 0.01 } else { 0.0 };
+            *p += rng.random_range(-0.008..0.008) + toward;
+            *d = rng.random_range(-0.008..0.008) + toward;
+        }
+        assert!(list.covers(&at, &dy), "trial {trial} leaves the slack");
+        let near = list.near(&mesh, &at, &dy, dhat).unwrap();
+        assert!(near.len() < list.len());
+        for s in [0.0, 0.3, 0.7, 1.0] {
+            let ys: Vec<f64> = at.iter().zip(&dy).map(|(p, d)| p + s * d).collect();
+            for p in close_pairs(&mesh, &ys, dhat) {
+                assert!(contains(&near, &p), "trial {trial}, s = {s}: missed {p:?}");
+                checked += 1;
+            }
+        }
+        // The swept list for the same step holds them too.
+        let swept = VerletList::build_swept(&mesh, &fixed, &at, &dy, dhat).unwrap();
+        assert!(!swept.covers(&at, &dy), "a swept list covers no other step");
+        let near = swept.near(&mesh, &at, &dy, dhat).unwrap();
+        for s in [0.0, 0.5, 1.0] {
+            let ys: Vec<f64> = at.iter().zip(&dy).map(|(p, d)| p + s * d).collect();
+            for p in close_pairs(&mesh, &ys, dhat) {
+                assert!(contains(&near, &p), "swept, s = {s}: missed {p:?}");
+            }
+        }
+    }
+    assert!(checked > 0, "the scene must bring pairs within d̂");
+    // A step that leaves the slack is not covered.
+    let far = vec![2.0 * slack; y.len()];
+    assert!(!list.covers(&y, &far));
+}
+
+/// Pairs that translate together cannot approach: only those already within d̂ are near.
+#[test]
+fn common_translation_keeps_only_pairs_within_dhat() {
+    let (y, faces) = two_sheets(8, 0.04, [0.0, 0.0], 0.0, 0.005, 9);
+    let mesh = two_sheet_mesh(&y, &faces);
+    let fixed = FixedPrimitives::new(&mesh, &y).unwrap();
+    let dhat = 0.05;
+    let list = VerletList::build(&mesh, &fixed, &y, dhat, 0.04).unwrap();
+    let dy: Vec<f64> = (0..y.len()).map(|i| [0.02, -0.01, 0.015][i % 3]).collect();
+    assert!(list.covers(&y, &dy));
+    let near = list.near(&mesh, &y, &dy, dhat).unwrap();
+    let within = close_pairs(&mesh, &y, dhat);
+    assert_eq!(near.len(), within.len());
+    assert!(within.iter().all(|p| contains(&near, p)));
+    assert!(list.len() > near.len());
+}
