@@ -154,6 +154,7 @@ fn pump(mut conn: Connection, state: Arc<(Mutex<State>, Condvar)>) {
                     Message::SetQuality {
                         quality: inputs.quality,
                         refine: Some(inputs.refine),
+                        contact: Some(inputs.contact),
                     },
                     Message::SetDisplay {
                         crosses: Some(inputs.display.crosses),

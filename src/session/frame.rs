@@ -33,7 +33,7 @@ impl FrameStats {
             termination: stats.termination,
             solve_ms: stats.wall_time.as_secs_f64() * 1e3,
             total_ms,
-            contacts: None,
+            contacts: stats.contact.as_ref().map(|c| c.active_pairs),
         }
     }
 }

@@ -9,7 +9,7 @@
 //! | `hello` | – | `hello`: protocol version, faces, code names and ranges, current inputs |
 //! | `set_codes` | `expression`: 19 weights or `{name: weight}` (others keep); `style`: 4 values or `{name: value}` | `ok` |
 //! | `set_face` | `face`: index or name (the style resets to the face's default) | `ok` |
-//! | `set_quality` | `quality`: `interactive`/`preview`/`final`; optional `refine`: bool | `ok` |
+//! | `set_quality` | `quality`: `interactive`/`preview`/`final`; optional `refine`, `contact`: bool | `ok` |
 //! | `set_display` | optional `crosses`, `heatmaps`: bool (overlays the frames carry) | `ok` |
 //! | `get_frame` | optional `after` (frame index: wait for a newer one), `timeout_ms` (≤ 10000, default 2000), `geometry` (default true) | `frame` (or `error` on timeout) |
 //! | `get_topology` | `face`: index | `topology`: triangles, rigid flags, mesh edges, rest positions |
@@ -68,6 +68,9 @@ pub enum Message {
         quality: Quality,
         #[serde(default, skip_serializing_if = "Option::is_none")]
         refine: Option<bool>,
+        /// Lip and teeth contact in the solve.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        contact: Option<bool>,
     },
     SetDisplay {
         #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -247,9 +250,14 @@ pub fn handle(session: &Session, message: Message) -> Reply {
                 )),
             }
         }
-        Message::SetQuality { quality, refine } => {
+        Message::SetQuality {
+            quality,
+            refine,
+            contact,
+        } => {
             let mut r = vec![Request::Quality(quality)];
             r.extend(refine.map(Request::Refine));
+            r.extend(contact.map(Request::Contact));
             submit(r)
         }
         Message::SetDisplay { crosses, heatmaps } => {

@@ -481,3 +481,25 @@ mod protocol_tests {
         ));
     }
 }
+
+/// Contact in the session: on the sample's template with its basis, the lower lip rolled in
+/// at full weight solves with contact on to a valid frame with contact pairs reported (the
+/// solver's own crossing check passed), and switching contact off again reports none.
+#[test]
+fn contact_on_keeps_the_rolled_lips_apart_in_the_session() {
+    let sample = crate::sample::Sample::load(
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(crate::sample::SAMPLE_DIR),
+    )
+    .unwrap();
+    let s = Session::new(sample.session_faces()[..1].to_vec(), Quality::Interactive).unwrap();
+    s.submit(Request::Refine(false)).unwrap();
+    s.submit(Request::Contact(true)).unwrap();
+    let g = s.submit(expression("mouthRollLower", 1.0)).unwrap();
+    let on = s.wait_generation(g, WAIT).unwrap();
+    assert!(on.error.is_none(), "{:?}", on.error);
+    assert!(on.stats.contacts.is_some_and(|c| c > 0), "{:?}", on.stats);
+    assert!(on.positions.iter().flatten().all(|v| v.is_finite()));
+    let g = s.submit(Request::Contact(false)).unwrap();
+    let off = s.wait_generation(g, WAIT).unwrap();
+    assert_eq!(off.stats.contacts, None);
+}

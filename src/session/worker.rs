@@ -10,6 +10,7 @@ use serde::{Deserialize, Serialize};
 use super::face::{FaceTopology, SessionFace};
 use super::frame::{Frame, FrameStats, Overlays, Solved, geometry};
 use super::heatmap::{FieldSource, builtin_sources};
+use crate::contact::face::{FaceContact, FaceContactSettings};
 use crate::drive::{Codes, DriveError};
 use crate::rig::ExpressionCode;
 use crate::rig::style::StyleCode;
@@ -45,6 +46,10 @@ pub struct Inputs {
     /// Refine toward [`Quality::Final`] when the inputs rest.
     pub refine: bool,
     pub display: Display,
+    /// Lip and teeth contact in the solve (IPC barrier, collision-checked steps): lips never
+    /// cross, at several times the cost of a contact-free frame.
+    #[serde(default)]
+    pub contact: bool,
 }
 
 /// One change to the inputs. Requests merge into the pending inputs; only the latest
@@ -63,6 +68,7 @@ pub enum Request {
     Quality(Quality),
     Refine(bool),
     Display(Display),
+    Contact(bool),
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -147,6 +153,7 @@ impl Session {
             quality,
             refine: true,
             display: Display::default(),
+            contact: false,
         };
         let shared = Arc::new(Shared {
             pending: Mutex::new(Pending {
@@ -309,6 +316,7 @@ pub fn apply_requests(
             Request::Quality(q) => inputs.quality = *q,
             Request::Refine(r) => inputs.refine = *r,
             Request::Display(d) => inputs.display = *d,
+            Request::Contact(c) => inputs.contact = *c,
         }
     }
     inputs.codes.validate()?;
@@ -319,6 +327,9 @@ pub fn apply_requests(
 struct FaceSim {
     sim: Simulator,
     state: SimState,
+    /// Whether `state` was solved with contact: a contact solve must start from a state
+    /// without crossings, which a contact-free one does not promise.
+    contact: bool,
     /// Positions of the last successful solve, to recover from a failed one.
     good_x: Vec<f64>,
 }
@@ -451,12 +462,31 @@ impl Worker {
                 .actuate(&inputs.codes)
                 .map_err(|e| e.to_string())?;
             if self.sims[inputs.face].is_none() {
-                let sim = face.model.simulator().map_err(|e| e.to_string())?;
+                let mut sim = face.model.simulator().map_err(|e| e.to_string())?;
+                let surfaces = FaceContact::new(&face.model, &FaceContactSettings::default())
+                    .map_err(|e| format!("contact surfaces: {e}"))?;
+                sim.set_contact(surfaces).map_err(|e| e.to_string())?;
                 let state = sim.rest_state();
                 let good_x = state.flat_positions().to_vec();
-                self.sims[inputs.face] = Some(FaceSim { sim, state, good_x });
+                self.sims[inputs.face] = Some(FaceSim {
+                    sim,
+                    state,
+                    contact: false,
+                    good_x,
+                });
             }
             let fs = self.sims[inputs.face].as_mut().expect("built above");
+            if inputs.contact && !fs.contact {
+                // Switching contact on: start from the (crossing-free) rest shape.
+                fs.state = fs.sim.rest_state();
+                fs.good_x.clear();
+                fs.good_x.extend_from_slice(fs.state.flat_positions());
+            }
+            fs.contact = inputs.contact;
+            let settings = SolveSettings {
+                contact: inputs.contact,
+                ..settings
+            };
             let bones = actuation.bones();
             let mut stats = fs
                 .sim

@@ -11,7 +11,7 @@ use facesim::rig::ExpressionCode;
 use facesim::rig::style::StyleCode;
 use facesim::session::track::Track;
 use facesim::session::{Display, Frame, Request, SessionHandle};
-use facesim::sim::Quality;
+use facesim::sim::{Quality, Termination};
 use nalgebra::Point3;
 
 use crate::scene::{self, Toggles};
@@ -143,8 +143,15 @@ impl EditorApp {
             });
         let mut refine = inputs.refine;
         ui.checkbox(&mut refine, "refine to final when idle");
-        if quality != inputs.quality || refine != inputs.refine {
-            self.submit(&[Request::Quality(quality), Request::Refine(refine)]);
+        let mut contact = inputs.contact;
+        ui.checkbox(&mut contact, "lip and teeth contact")
+            .on_hover_text("lips and teeth never cross; frames take several times longer");
+        if quality != inputs.quality || refine != inputs.refine || contact != inputs.contact {
+            self.submit(&[
+                Request::Quality(quality),
+                Request::Refine(refine),
+                Request::Contact(contact),
+            ]);
         }
 
         ui.separator();
@@ -245,9 +252,18 @@ impl EditorApp {
                     f.stats.solve_ms, f.stats.total_ms
                 ));
                 ui.label(match f.stats.contacts {
-                    Some(c) => format!("contacts {c}"),
-                    None => "contacts: not in this solver".into(),
+                    Some(c) => format!("contact pairs {c}"),
+                    None => "contact off".into(),
                 });
+                if f.error.is_none() && f.stats.termination != Termination::Converged {
+                    ui.label(
+                        RichText::new(format!(
+                            "not converged ({:?}): shown as far as the solver got",
+                            f.stats.termination
+                        ))
+                        .color(Color32::from_rgb(230, 140, 0)),
+                    );
+                }
                 if let Some(e) = &f.error {
                     ui.label(RichText::new(e).color(Color32::RED));
                 }
