@@ -398,6 +398,10 @@ mod protocol_tests {
                 "over the limit",
             ),
             (r#"{"op":"set_display","crosess":true}"#, "unknown field"),
+            (
+                r#"{"op":"set_quality","quality":"final","contact":"yes"}"#,
+                "invalid type",
+            ),
         ] {
             let reply = ask(&mut out, &mut input, line);
             assert_eq!(reply["reply"], "error", "{line} → {reply}");
@@ -410,11 +414,12 @@ mod protocol_tests {
             ask(
                 &mut out,
                 &mut input,
-                r#"{"op":"set_quality","quality":"preview"}"#
+                r#"{"op":"set_quality","quality":"preview","contact":true}"#
             )["reply"],
             "ok"
         );
         assert_eq!(s.inputs().quality, Quality::Preview);
+        assert!(s.inputs().contact);
         // An over-long line is refused and the connection closed.
         let long = format!("{{\"op\":\"hello\",\"pad\":\"{}\"}}", "x".repeat(70_000));
         let reply = ask(&mut out, &mut input, &long);
