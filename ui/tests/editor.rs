@@ -11,12 +11,21 @@ use egui_kittest::kittest::Queryable;
 use facesim::session::{Session, SessionFace, SessionHandle};
 use facesim::sim::Quality;
 use facesim_ui::app::EditorApp;
+use facesim_ui::faces::{Actuation, open_sample_session};
+
+fn sample_dir() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("..")
+        .join(facesim::sample::SAMPLE_DIR)
+}
 
 fn sample() -> Vec<SessionFace> {
-    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("..")
-        .join(facesim::sample::SAMPLE_DIR);
-    facesim_ui::faces::load_sample(&dir).expect("the bundled sample")
+    facesim_ui::faces::load_sample(&sample_dir()).expect("the bundled sample")
+}
+
+/// A session on the bundled sample the way the app opens it (with φ's heatmaps).
+fn open_sample(actuation: Actuation) -> Arc<dyn SessionHandle> {
+    Arc::new(open_sample_session(&sample_dir(), Quality::Interactive, actuation).unwrap())
 }
 
 fn wait_for(harness: &mut Harness<'_, EditorApp>, done: impl Fn(&EditorApp) -> bool) {
@@ -41,17 +50,7 @@ fn moving_the_jaw_slider_changes_the_face_on_screen() {
 /// The same with the trained expression/style networks driving the face.
 #[test]
 fn the_networks_drive_the_face_from_the_slider() {
-    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("..")
-        .join(facesim::sample::SAMPLE_DIR);
-    let session: Arc<dyn SessionHandle> = Arc::new(
-        facesim_ui::faces::open_sample_session(
-            &dir,
-            Quality::Interactive,
-            facesim_ui::faces::Actuation::Networks,
-        )
-        .unwrap(),
-    );
+    let session = open_sample(Actuation::Networks);
     jaw_slider_changes_the_face(session);
 }
 
@@ -102,17 +101,7 @@ fn jaw_slider_changes_the_face(session: Arc<dyn SessionHandle>) {
 /// "phi det" heatmap recolours the skin.
 #[test]
 fn the_mapping_heatmap_colours_the_identity_on_screen() {
-    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("..")
-        .join(facesim::sample::SAMPLE_DIR);
-    let session: Arc<dyn SessionHandle> = Arc::new(
-        facesim_ui::faces::open_sample_session(
-            &dir,
-            Quality::Interactive,
-            facesim_ui::faces::Actuation::Basis,
-        )
-        .unwrap(),
-    );
+    let session = open_sample(Actuation::Basis);
     session
         .submit(&[facesim::session::Request::Face(1)])
         .unwrap();
