@@ -13,6 +13,8 @@ use crate::rig::ExpressionCode;
 use crate::session::{Request, Session, SessionError, SessionFace};
 use crate::sim::Quality;
 
+use super::percentile;
+
 #[derive(Clone, Debug, Serialize)]
 pub struct LatencyRow {
     pub face: String,
@@ -24,11 +26,6 @@ pub struct LatencyRow {
     pub median_iterations: usize,
     /// Frames whose solve failed (reported, never hidden).
     pub errors: usize,
-}
-
-fn percentile(sorted: &[f64], p: f64) -> f64 {
-    let i = ((sorted.len() - 1) as f64 * p).round() as usize;
-    sorted[i]
 }
 
 /// The slider steps of one drag: `slider` from 0 to 1 and back in `steps` moves.

@@ -19,6 +19,7 @@ use crate::plot::scatter::{Chart, PALETTE, Series, draw};
 use crate::rig::ExpressionCode;
 use crate::sim::{Quality, SimError, Simulator, SolveSettings};
 
+use super::percentile;
 use super::sequence::solve_codes;
 
 /// A face at one level of detail and the model that drives it.
@@ -181,12 +182,6 @@ pub struct TradeRow {
     pub max_error_mm: f64,
     pub crossing_frames: usize,
     pub max_volume_change: f64,
-}
-
-fn percentile(v: &[f64], p: f64) -> f64 {
-    let mut s = v.to_vec();
-    s.sort_by(f64::total_cmp);
-    s[((s.len() - 1) as f64 * p).round() as usize]
 }
 
 /// The row of `run` of `face` at `quality`/`contact` against `reference`.
