@@ -96,6 +96,15 @@ pub fn bench_tradeoff(args: &TradeoffArgs) -> Result<()> {
     );
     let md = table(&rows);
     print!("{md}");
+    for r in rows.iter().filter(|r| !r.errors.is_empty()) {
+        println!(
+            "{} {} contact {}: {}",
+            r.lod.name(),
+            r.quality.name(),
+            if r.contact { "on" } else { "off" },
+            r.errors.join("; ")
+        );
+    }
     write(&args.out, "tradeoff.md", md.as_bytes())?;
     write(
         &args.out,

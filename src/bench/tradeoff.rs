@@ -182,6 +182,8 @@ pub struct TradeRow {
     pub max_error_mm: f64,
     pub crossing_frames: usize,
     pub max_volume_change: f64,
+    /// Why frames failed (each distinct message once).
+    pub errors: Vec<String>,
 }
 
 /// The row of `run` of `face` at `quality`/`contact` against `reference`.
@@ -224,6 +226,12 @@ pub fn row(
         max_error_mm: if count > 0 { max } else { f64::NAN },
         crossing_frames: run.crossing_frames,
         max_volume_change: run.max_volume_change,
+        errors: {
+            let mut e = run.errors.clone();
+            e.sort();
+            e.dedup();
+            e
+        },
     }
 }
 

@@ -38,7 +38,7 @@ const WIDTH: usize = 900;
 const HEIGHT: usize = 600;
 const LEFT: usize = 110;
 const RIGHT: usize = 40;
-const TOP: usize = 50;
+const TOP: usize = 76;
 const BOTTOM: usize = 80;
 const GRID: [u8; 3] = [225, 225, 225];
 
@@ -108,9 +108,9 @@ pub fn draw(chart: &Chart) -> Result<Canvas, String> {
     }
     c.fill(LEFT, TOP, 1, ph + 1, BLACK);
     c.fill(LEFT, TOP + ph, pw, 1, BLACK);
-    c.text_centered(&chart.title, WIDTH / 2, 14);
+    c.text_centered(&chart.title, WIDTH / 2, 12);
     c.text_centered(&chart.x_label, LEFT + pw / 2, TOP + ph + 16 + char_h);
-    c.text(&chart.y_label, 8, TOP - 2 * char_h);
+    c.text(&chart.y_label, 8, TOP - char_h - 12);
 
     for s in &chart.series {
         let pts: Vec<(f64, f64)> = s.points.iter().map(|&(x, y)| (px(x), py(y))).collect();
