@@ -58,16 +58,8 @@ impl Candidates {
         dx: &[f64],
         inflation: f64,
     ) -> Result<Self, ContactError> {
-        mesh.check_positions(x)?;
-        mesh.check_positions(dx)?;
-        check_inflation(inflation)?;
-        Ok(Self::from_boxes(mesh, |ids: &[u32]| {
-            let ends = ids.iter().flat_map(|&i| {
-                let p = Point3::from(vertex(x, i));
-                [p, p + vertex(dx, i)]
-            });
-            Box3::around_iter(ends, 0.5 * inflation)
-        }))
+        check_swept(mesh, x, dx, inflation)?;
+        Ok(Self::from_boxes(mesh, swept_box(x, dx, inflation)))
     }
 
     /// Total number of pairs.
@@ -416,23 +408,41 @@ impl Candidates {
         dx: &[f64],
         inflation: f64,
     ) -> Result<Self, ContactError> {
-        mesh.check_positions(x)?;
-        mesh.check_positions(dx)?;
-        check_inflation(inflation)?;
+        check_swept(mesh, x, dx, inflation)?;
         fixed.check(x, Some(dx))?;
-        let box_of = |ids: &[u32]| {
-            let ends = ids.iter().flat_map(|&i| {
-                let p = Point3::from(vertex(x, i));
-                [p, p + vertex(dx, i)]
-            });
-            Box3::around_iter(ends, 0.5 * inflation)
-        };
         Ok(Self::from_split(
             mesh,
-            &box_of,
+            &swept_box(x, dx, inflation),
             &fixed.trees,
             0.5 * inflation,
         ))
+    }
+}
+
+fn check_swept(
+    mesh: &ContactMesh,
+    x: &[f64],
+    dx: &[f64],
+    inflation: f64,
+) -> Result<(), ContactError> {
+    mesh.check_positions(x)?;
+    mesh.check_positions(dx)?;
+    check_inflation(inflation)
+}
+
+/// The box of a primitive (its vertex ids) over the step `x → x + dx`, grown by
+/// `inflation/2`: a vertex moves on a segment, so both ends bound its path.
+fn swept_box<'a>(
+    x: &'a [f64],
+    dx: &'a [f64],
+    inflation: f64,
+) -> impl Fn(&[u32]) -> Box3 + Sync + 'a {
+    move |ids: &[u32]| {
+        let ends = ids.iter().flat_map(|&i| {
+            let p = Point3::from(vertex(x, i));
+            [p, p + vertex(dx, i)]
+        });
+        Box3::around_iter(ends, 0.5 * inflation)
     }
 }
 
