@@ -31,6 +31,15 @@ fn neutral() -> crate::session::SessionFace {
         .unwrap()
 }
 
+/// What an export of the short track into every core format leaves in its folder.
+const SHORT_OUTPUTS: [&str; 5] = [
+    "short.glb",
+    "short.obj",
+    "short.pc2",
+    "short.usda",
+    "short_obj",
+];
+
 fn listing(dir: &Path) -> Vec<String> {
     let mut names: Vec<String> = std::fs::read_dir(dir)
         .unwrap()
@@ -107,17 +116,7 @@ fn a_short_track_exports_to_every_format_consistently() {
     .unwrap();
     assert_eq!(summary.frames, 4, "0, 0.1, 0.2, 0.3 s");
     assert_eq!(seen.last(), Some(&(4, 4)));
-    assert_eq!(
-        listing(&dir),
-        [
-            "short.glb",
-            "short.obj",
-            "short.pc2",
-            "short.usda",
-            "short_obj"
-        ],
-        "only final names remain"
-    );
+    assert_eq!(listing(&dir), SHORT_OUTPUTS, "only final names remain");
     assert_eq!(
         listing(&dir.join("short_obj")),
         [
@@ -207,16 +206,7 @@ fn a_short_track_exports_to_every_format_consistently() {
     )
     .unwrap_err();
     assert!(err.to_string().contains("disk full"), "{err}");
-    assert_eq!(
-        listing(&dir),
-        [
-            "short.glb",
-            "short.obj",
-            "short.pc2",
-            "short.usda",
-            "short_obj"
-        ]
-    );
+    assert_eq!(listing(&dir), SHORT_OUTPUTS);
     assert_eq!(std::fs::read(dir.join("short.pc2")).unwrap(), before);
     staging::remove_any(&dir).unwrap();
 }

@@ -28,6 +28,14 @@ fn open_sample(actuation: Actuation) -> Arc<dyn SessionHandle> {
     Arc::new(open_sample_session(&sample_dir(), Quality::Interactive, actuation).unwrap())
 }
 
+/// Pixels that differ visibly (by more than 24 in some channel) between two RGBA renders.
+fn pixels_changed(a: &[u8], b: &[u8]) -> usize {
+    a.chunks_exact(4)
+        .zip(b.chunks_exact(4))
+        .filter(|(p, q)| p.iter().zip(q.iter()).any(|(x, y)| x.abs_diff(*y) > 24))
+        .count()
+}
+
 fn wait_for(harness: &mut Harness<'_, EditorApp>, done: impl Fn(&EditorApp) -> bool) {
     let deadline = Instant::now() + Duration::from_secs(120);
     while !done(harness.state()) {
@@ -86,11 +94,7 @@ fn jaw_slider_changes_the_face(session: Arc<dyn SessionHandle>) {
         .fold(0.0f32, f32::max);
     assert!(moved > 0.3, "the jaw must move the face (max {moved} cm)");
     assert!(after_frame.error.is_none(), "{:?}", after_frame.error);
-    let changed = before
-        .pixels()
-        .zip(after.pixels())
-        .filter(|(a, b)| a.0.iter().zip(b.0.iter()).any(|(x, y)| x.abs_diff(*y) > 24))
-        .count();
+    let changed = pixels_changed(before.as_raw(), after.as_raw());
     assert!(
         changed > 2000,
         "the viewport must show the change ({changed} pixels differ)"
@@ -129,11 +133,7 @@ fn the_mapping_heatmap_colours_the_identity_on_screen() {
     harness.state_mut().toggles.heatmap = Some(index);
     harness.run_steps(3);
     let coloured = harness.render().expect("software rendering");
-    let changed = plain
-        .pixels()
-        .zip(coloured.pixels())
-        .filter(|(a, b)| a.0.iter().zip(b.0.iter()).any(|(x, y)| x.abs_diff(*y) > 24))
-        .count();
+    let changed = pixels_changed(plain.as_raw(), coloured.as_raw());
     assert!(
         changed > 5000,
         "the heatmap must colour the skin ({changed} pixels differ)"

@@ -169,21 +169,26 @@ fn bad_inputs_are_typed_errors() {
     ));
 }
 
-/// Soft tissue that touches everything and rigid pieces that touch only soft tissue (the
-/// face's groups) take the broad phase's two-tree path: it must still find every allowed
-/// close pair, and honour per-pair exclusions.
-#[test]
-fn split_groups_and_exclusions_miss_no_allowed_pair() {
+/// Two close sheets whose vertex groups run in stripes: soft (0), rigid on one bone (1),
+/// rigid on another (2); rigid touches only soft. Positions, mesh and the groups.
+fn striped_sheets() -> (Vec<f64>, ContactMesh, Vec<u16>) {
     let (x, faces) = two_sheets(9, 0.03, [0.013, -0.021], 0.3, 0.01, 7);
-    let n = x.len() / 3;
-    // Vertex groups in stripes: soft (0), rigid on one bone (1), rigid on another (2).
-    let group: Vec<u16> = (0..n).map(|v| (v % 3) as u16).collect();
+    let group: Vec<u16> = (0..x.len() / 3).map(|v| (v % 3) as u16).collect();
     let matrix = [
         vec![true, true, true],
         vec![true, false, false],
         vec![true, false, false],
     ];
-    let mesh = ContactMesh::with_groups(&x, faces.clone(), group, &matrix).unwrap();
+    let mesh = ContactMesh::with_groups(&x, faces, group.clone(), &matrix).unwrap();
+    (x, mesh, group)
+}
+
+/// Soft tissue that touches everything and rigid pieces that touch only soft tissue (the
+/// face's groups) take the broad phase's two-tree path: it must still find every allowed
+/// close pair, and honour per-pair exclusions.
+#[test]
+fn split_groups_and_exclusions_miss_no_allowed_pair() {
+    let (x, mesh, _) = striped_sheets();
     assert!(mesh.groups_split_by_universal());
     let dhat = 0.05;
     let (pt, ee) = brute_force(&mesh, &x, dhat);
@@ -226,15 +231,7 @@ fn split_groups_and_exclusions_miss_no_allowed_pair() {
 /// candidates are the same lists as built from scratch, and the fixed vertices may not move.
 #[test]
 fn fixed_trees_give_the_same_candidates_and_refuse_moved_vertices() {
-    let (x, faces) = two_sheets(9, 0.03, [0.013, -0.021], 0.3, 0.01, 7);
-    let n = x.len() / 3;
-    let group: Vec<u16> = (0..n).map(|v| (v % 3) as u16).collect();
-    let matrix = [
-        vec![true, true, true],
-        vec![true, false, false],
-        vec![true, false, false],
-    ];
-    let mesh = ContactMesh::with_groups(&x, faces, group.clone(), &matrix).unwrap();
+    let (x, mesh, group) = striped_sheets();
     let fixed = FixedPrimitives::new(&mesh, &x).unwrap();
     assert!(fixed.vertex_count() > 0);
     let dhat = 0.05;
@@ -257,7 +254,7 @@ fn fixed_trees_give_the_same_candidates_and_refuse_moved_vertices() {
     let with = Candidates::build_swept_with(&mesh, &fixed, &x, &dx, dhat).unwrap();
     assert_eq!(plain, with);
     // Moving a fixed vertex (in the step or in the positions) is refused.
-    let rigid = (0..n).find(|&v| group[v] != 0).unwrap();
+    let rigid = (0..group.len()).find(|&v| group[v] != 0).unwrap();
     let mut bad = dx.clone();
     bad[3 * rigid] = 0.01;
     assert!(Candidates::build_swept_with(&mesh, &fixed, &x, &bad, dhat).is_err());
