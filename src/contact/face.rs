@@ -174,16 +174,23 @@ impl FaceContact {
         let bindings: Vec<ContactBinding> = render_vertices
             .iter()
             .map(|&r| match render.bindings[r as usize] {
-                Binding::Embedded { element, weights } => ContactBinding::Embedded {
+                Binding::Embedded { element, weights } => Ok(ContactBinding::Embedded {
                     tet: model.mesh.tets[element as usize],
                     weights,
-                },
-                Binding::Rigid(bone) => ContactBinding::Rigid {
+                }),
+                Binding::Rigid(bone) => Ok(ContactBinding::Rigid {
                     bone,
                     rest: render.rest[r as usize],
-                },
+                }),
+                // Only skin far from the mouth, on the skull, is blended; a contact surface
+                // reaching it would need an affine binding with a pose-dependent offset.
+                Binding::Blended { .. } => Err(ContactError::InvalidMesh(format!(
+                    "render vertex {r} of the contact region is blended between the tissue and \
+                     the skull (skin outside the tissue); contact takes embedded or rigid \
+                     vertices only: lower lip_reach/teeth_reach"
+                ))),
             })
-            .collect();
+            .collect::<Result<_, _>>()?;
         let group: Vec<u16> = bindings
             .iter()
             .map(|b| match b {

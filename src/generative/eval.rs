@@ -13,7 +13,7 @@ use serde::{Deserialize, Serialize};
 use super::GenerativeError;
 use crate::drive::{ActuationModel, Codes};
 use crate::mapping::warp::quantile;
-use crate::model::{Binding, FaceModel};
+use crate::model::FaceModel;
 use crate::rig::{ExpressionCode, FaceRig, StyleCode};
 use crate::sim::Quality;
 
@@ -123,7 +123,7 @@ pub fn evaluate(
             .bindings
             .iter()
             .enumerate()
-            .filter(|(_, b)| matches!(b, Binding::Embedded { .. }))
+            .filter(|(_, b)| b.element().is_some())
             .map(|(i, _)| i)
             .collect();
         let targets = codes

@@ -7,11 +7,14 @@ use rand_chacha::ChaCha8Rng;
 
 use super::MappingError;
 use crate::geometry::TetMesh;
-use crate::model::{Binding, FaceModel};
+#[cfg(doc)]
+use crate::model::Binding;
+use crate::model::FaceModel;
 
 /// Pairs (x in D_M, X in D_C) of render vertices with the same rig vertex that both faces
-/// embed in their tissue (skin and lips; teeth and the deep mouth ride rigidly on bones and
-/// are not part of either material space).
+/// bind to their tissue (skin and lips, [`Binding::element`]: also the skin outside the tissue
+/// that follows the skull, whose rest position is still a point of the material space; teeth
+/// and the deep mouth ride rigidly on bones and are not part of either material space).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Correspondences {
     /// Render-vertex index in the identity's surface.
@@ -35,8 +38,8 @@ impl Correspondences {
             .zip(&identity.render.bindings)
             .enumerate()
         {
-            if let (Binding::Embedded { .. }, Some((true, target))) =
-                (binding, canonical_of_rig[rig as usize])
+            if let (Some(_), Some((true, target))) =
+                (binding.element(), canonical_of_rig[rig as usize])
             {
                 out.render_vertex.push(i);
                 out.material.push(identity.render.rest[i]);
@@ -86,7 +89,7 @@ pub(crate) fn canonical_positions_by_rig_vertex(
         .zip(&canonical.render.bindings)
         .zip(&canonical.render.rest)
     {
-        by_rig[rig as usize] = Some((matches!(b, Binding::Embedded { .. }), *p));
+        by_rig[rig as usize] = Some((b.element().is_some(), *p));
     }
     if canonical.identity.is_some() {
         return Err(MappingError::CanonicalIsNotNeutral(canonical.name.clone()));

@@ -96,8 +96,13 @@ pub struct BuildSettings {
     /// A surface vertex is on the jaw where jawOpen moves it like the lower teeth, to within
     /// this fraction of the teeth's motion there.
     pub jaw_match: f64,
-    /// Inner-mouth vertices farther than this from the tissue follow a bone instead.
+    /// Inner-mouth vertices farther than this from the tissue follow a bone instead; skin
+    /// that rides on the skull starts to blend onto it here.
     pub embed_distance: f64,
+    /// Skin that rides on the skull and lies this far or farther outside the tissue follows
+    /// the skull alone; between `embed_distance` and this it blends from the tissue onto it
+    /// (smoothstep, [`Binding::Blended`]).
+    pub skin_rigid_distance: f64,
     /// Rings of skin around the moving region that are simulated too (and pinned at their
     /// outer border), so the moving skin blends into the skin that rides on the skull.
     pub margin_rings: usize,
@@ -113,6 +118,7 @@ impl Default for BuildSettings {
             skull_motion: 0.05,
             jaw_match: 0.25,
             embed_distance: 0.3,
+            skin_rigid_distance: 1.0,
             margin_rings: 2,
         }
     }
@@ -142,9 +148,16 @@ pub struct BuildReport {
     pub jaw_pivot_rms_motion: f64,
     /// Rigid fit error of the lower teeth under jawOpen (cm).
     pub jaw_fit_rms: f64,
+    /// Render vertices the tissue alone moves.
     pub embedded_vertices: usize,
+    /// Skin vertices the tissue and the skull share (`0 < s < 1`, [`Binding::Blended`]).
+    pub blended_vertices: usize,
+    /// Skin vertices outside the tissue that follow the skull alone (`s = 0`).
+    pub skin_on_bone_vertices: usize,
+    /// Render vertices a bone alone moves (teeth, gums, the deep mouth).
     pub rigid_vertices: usize,
-    /// Largest distance of an embedded render vertex outside the tissue (cm).
+    /// Largest distance outside the tissue of a render vertex the tissue moves, fully or
+    /// blended (cm): how far its position is extrapolated.
     pub max_embed_distance: f64,
     /// The interior smoothing pass (worst dihedral angle before and after).
     pub improvement: Option<ImproveReport>,
@@ -614,13 +627,18 @@ impl BoneMotion {
 
     /// The bone under rig vertex `v`, if its skin rides on one.
     fn bone_of(&self, v: usize) -> Option<Bone> {
-        if self.max_motion[v] < self.skull_motion {
+        if self.on_skull(v) {
             Some(Bone::Skull)
         } else if self.jaw_mismatch[v] < self.jaw_match && self.jaw_motion[v] > 0.5 {
             Some(Bone::Jaw)
         } else {
             None
         }
+    }
+
+    /// Whether no default shape moves rig vertex `v` (its skin rides on the skull).
+    fn on_skull(&self, v: usize) -> bool {
+        self.max_motion[v] < self.skull_motion
     }
 
     /// The bone a non-embedded render vertex follows: the jaw if jawOpen moves it like the
@@ -631,6 +649,21 @@ impl BoneMotion {
         } else {
             Bone::Skull
         }
+    }
+}
+
+/// The share of the tissue in the motion of skin that rides on the skull, by its distance
+/// outside the tissue: 1 up to `embed_distance`, then a smoothstep down to 0 at
+/// `skin_rigid_distance` (no kink at either end, so no visible seam), 0 beyond.
+fn skin_share(distance: f64, settings: &BuildSettings) -> f64 {
+    let (near, far) = (settings.embed_distance, settings.skin_rigid_distance);
+    if distance <= near {
+        1.0
+    } else if distance >= far {
+        0.0
+    } else {
+        let t = (distance - near) / (far - near);
+        1.0 - t * t * (3.0 - 2.0 * t)
     }
 }
 
@@ -652,7 +685,9 @@ fn nearest_rig_vertex(
 }
 
 /// The render surface: skin and inner mouth embedded in the tissue where close to it; teeth,
-/// gums, tongue and the deep mouth rigid with their bone.
+/// gums, tongue and the deep mouth rigid with their bone; skin that the rig never moves and
+/// that lies outside the tissue (forehead, scalp, ears, neck) blended onto the skull with the
+/// distance (see [`skin_share`]).
 fn render_surface(
     rig: &FaceRig,
     rest: &[Point3<f64>],
@@ -681,33 +716,43 @@ fn render_surface(
         .enumerate()
         .map(|(i, &v)| {
             let region = Region::of_vertex(v as usize);
-            let soft = matches!(region, Some(Region::FaceSkin) | Some(Region::MouthSocket));
-            if soft
-                && (region == Some(Region::FaceSkin)
-                    || embedding.outside_distance[i] <= settings.embed_distance)
-            {
-                Binding::Embedded {
-                    element: embedding.elements[i],
-                    weights: embedding.weights[i],
+            let (element, weights) = (embedding.elements[i], embedding.weights[i]);
+            let distance = embedding.outside_distance[i];
+            match region {
+                Some(Region::FaceSkin) if motion.on_skull(v as usize) => {
+                    let embedded = skin_share(distance, settings);
+                    if embedded == 1.0 {
+                        Binding::Embedded { element, weights }
+                    } else {
+                        Binding::Blended {
+                            element,
+                            weights,
+                            bone: Bone::Skull,
+                            embedded,
+                        }
+                    }
                 }
-            } else {
-                match region {
-                    Some(Region::UpperTeeth) => Binding::Rigid(Bone::Skull),
-                    Some(Region::LowerTeeth) => Binding::Rigid(Bone::Jaw),
-                    _ => Binding::Rigid(motion.nearest_bone(v as usize)),
+                Some(Region::FaceSkin) => Binding::Embedded { element, weights },
+                Some(Region::MouthSocket) if distance <= settings.embed_distance => {
+                    Binding::Embedded { element, weights }
                 }
+                Some(Region::UpperTeeth) => Binding::Rigid(Bone::Skull),
+                Some(Region::LowerTeeth) => Binding::Rigid(Bone::Jaw),
+                _ => Binding::Rigid(motion.nearest_bone(v as usize)),
             }
         })
         .collect();
-    report.embedded_vertices = bindings
-        .iter()
-        .filter(|b| matches!(b, Binding::Embedded { .. }))
-        .count();
-    report.rigid_vertices = bindings.len() - report.embedded_vertices;
+    let count = |keep: &dyn Fn(&Binding) -> bool| bindings.iter().filter(|b| keep(b)).count();
+    report.embedded_vertices = count(&|b| matches!(b, Binding::Embedded { .. }));
+    report.blended_vertices =
+        count(&|b| matches!(b, Binding::Blended { .. }) && b.embedded_share() > 0.0);
+    report.skin_on_bone_vertices =
+        count(&|b| matches!(b, Binding::Blended { .. }) && b.embedded_share() == 0.0);
+    report.rigid_vertices = count(&|b| matches!(b, Binding::Rigid(_)));
     report.max_embed_distance = bindings
         .iter()
         .zip(&embedding.outside_distance)
-        .filter(|(b, _)| matches!(b, Binding::Embedded { .. }))
+        .filter(|(b, _)| b.embedded_share() > 0.0)
         .map(|(_, d)| *d)
         .fold(0.0, f64::max);
     let triangles = surface
@@ -811,6 +856,130 @@ mod tests {
             .position(|&v| v as usize == Region::LowerTeeth.vertices().start)
             .unwrap();
         assert!(moved[chin].y < model.render.rest[chin].y - 0.1);
+    }
+
+    /// Skin far outside the tissue (forehead, scalp, ears, neck: nothing the rig moves) follows
+    /// the skull exactly, also when the head turns, where its version-1 binding (embedded in
+    /// the nearest, distant element) swung with that element; skin in the blend band mixes
+    /// the two by its share.
+    #[test]
+    fn skin_far_outside_the_tissue_follows_the_skull() {
+        let model = neutral_coarse();
+        let render = &model.render;
+        let settings = Lod::Coarse.settings();
+        let embedding = Embedding::new(&model.mesh, &render.rest);
+        let skin =
+            |i: usize| Region::of_vertex(render.rig_vertices[i] as usize) == Some(Region::FaceSkin);
+        let far: Vec<usize> = (0..render.rest.len())
+            .filter(|&i| skin(i) && embedding.outside_distance[i] >= settings.skin_rigid_distance)
+            .collect();
+        assert!(far.len() > 500, "{} skin vertices far out", far.len());
+        let band: Vec<usize> = (0..render.rest.len())
+            .filter(|&i| matches!(render.bindings[i], Binding::Blended { embedded, .. } if embedded > 0.0))
+            .collect();
+        assert!(band.len() > 100, "{} blended skin vertices", band.len());
+        assert_eq!(model.report.skin_on_bone_vertices, far.len());
+        assert_eq!(model.report.blended_vertices, band.len());
+        assert!(model.report.max_embed_distance < settings.skin_rigid_distance);
+
+        // The jaw opens (the tissue between jaw and skull stretches and turns) and the head
+        // turns 0.3 rad and moves.
+        let sim = model.simulator().unwrap();
+        let mut state = sim.rest_state();
+        let rest = vec![SymTensor::IDENTITY; sim.element_count()];
+        let bones = BonePose {
+            jaw: crate::sim::RigidMotion::from_params([0.12, 0.0, 0.0, 0.0, 0.0, 0.0]),
+            skull: crate::sim::RigidMotion::from_params([0.0, 0.3, 0.05, 1.0, -0.5, 0.2]),
+        };
+        sim.solve(&rest, &bones, &mut state, &Quality::Preview.settings())
+            .unwrap();
+        let x = state.flat_positions();
+        let moved = model.render_positions(x, &bones);
+        let on_skull = |i: usize| bones.target(Bone::Skull, &model.jaw_pivot, &render.rest[i]);
+        let mut old_worst = 0.0f64;
+        for &i in &far {
+            assert!(
+                (moved[i] - on_skull(i)).norm() < 1e-9,
+                "far skin vertex {i} ({:.2} cm out) is {} cm off the skull",
+                embedding.outside_distance[i],
+                (moved[i] - on_skull(i)).norm()
+            );
+            // What the old binding gave: extrapolated from the nearest element.
+            let old = crate::geometry::embedding::interpolate(
+                &model.mesh.tets[embedding.elements[i] as usize],
+                &embedding.weights[i],
+                x,
+            );
+            old_worst = old_worst.max((old - on_skull(i)).norm());
+        }
+        assert!(
+            old_worst > 0.01,
+            "the old binding wobbled by only {old_worst} cm"
+        );
+        for &i in &band {
+            let Binding::Blended {
+                element,
+                weights,
+                embedded,
+                ..
+            } = render.bindings[i]
+            else {
+                unreachable!()
+            };
+            let soft = crate::geometry::embedding::interpolate(
+                &model.mesh.tets[element as usize],
+                &weights,
+                x,
+            );
+            let expected = on_skull(i) + (soft - on_skull(i)) * embedded;
+            assert!((moved[i] - expected).norm() < 1e-12);
+            let d = embedding.outside_distance[i];
+            assert!(d > settings.embed_distance && d < settings.skin_rigid_distance);
+        }
+    }
+
+    /// The blend of skin onto the skull: 1 up to `embed_distance`, 0 from
+    /// `skin_rigid_distance`, falling smoothly (no jump, flat at both ends) between.
+    #[test]
+    fn the_skin_share_falls_smoothly_from_one_to_zero() {
+        let settings = BuildSettings::default();
+        let (near, far) = (settings.embed_distance, settings.skin_rigid_distance);
+        assert_eq!(skin_share(0.0, &settings), 1.0);
+        assert_eq!(skin_share(near, &settings), 1.0);
+        assert_eq!(skin_share(far, &settings), 0.0);
+        assert_eq!(skin_share(7.0, &settings), 0.0);
+        assert!((skin_share(0.5 * (near + far), &settings) - 0.5).abs() < 1e-12);
+        let h = 1e-6;
+        let mut last = 1.0;
+        for k in 0..=1000 {
+            let d = near + (far - near) * k as f64 / 1000.0;
+            let s = skin_share(d, &settings);
+            assert!((0.0..=1.0).contains(&s) && s <= last, "{d}: {s}");
+            last = s;
+        }
+        // Flat where it meets the embedded and the rigid skin: no kink, no visible seam.
+        for d in [near, far] {
+            let slope = (skin_share(d + h, &settings) - skin_share(d - h, &settings)) / (2.0 * h);
+            assert!(slope.abs() < 1e-5, "slope {slope} at {d}");
+        }
+    }
+
+    /// A face file written before skin could blend onto the skull (format version 1) fails
+    /// to load, saying which versions.
+    #[test]
+    fn version_one_face_files_fail_with_a_versioned_error() {
+        let dir = temp_dir("face-v1");
+        let path = dir.join("old.face");
+        let v1 = crate::model::file::Format {
+            kind: "face",
+            version: 1,
+        };
+        crate::model::file::write(&path, v1, neutral_coarse()).unwrap();
+        let err = FaceModel::load(&path).unwrap_err().to_string();
+        assert!(
+            err.contains("version 1") && err.contains("reads version 2"),
+            "{err}"
+        );
     }
 
     #[test]

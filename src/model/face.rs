@@ -14,9 +14,11 @@ use crate::geometry::shell::MeshQuality;
 use crate::sim::{Attachments, Bone, SimConfig, SimError, Simulator};
 
 /// The file format of face models; bump `version` whenever [`FaceModel`] changes shape.
+/// Version 2: skin outside the tissue that the rig never moves is [`Binding::Blended`] with
+/// the skull (version 1 extrapolated it from its nearest element, up to 7 cm away).
 pub const FACE_FORMAT: Format = Format {
     kind: "face",
-    version: 1,
+    version: 2,
 };
 
 /// How one vertex of the render surface follows the simulation.
@@ -26,6 +28,41 @@ pub enum Binding {
     Embedded { element: u32, weights: [f64; 4] },
     /// Rigidly with a bone (teeth, gums, the back of the mouth).
     Rigid(Bone),
+    /// Skin outside the tissue that rides on a bone (forehead, scalp, ears, neck): a mix of
+    /// the embedded position and the bone's, `p = s·Σᵢ wᵢ·xᵢ + (1 − s)·T_bone(rest)`, with `s`
+    /// (`embedded`, in [0, 1)) falling smoothly with the distance outside the tissue. Far out,
+    /// barycentric weights extrapolate: a small rotation of the element would swing the
+    /// point by its distance times the angle (the "forehead wobble"); the blend keeps the
+    /// skin next to the tissue following it and the skin far from it on the bone, without a
+    /// seam between. `element`/`weights` stay the vertex's place in the face's material space
+    /// (the mapping φ and the heatmaps use it) even where `s = 0`.
+    Blended {
+        element: u32,
+        weights: [f64; 4],
+        bone: Bone,
+        embedded: f64,
+    },
+}
+
+impl Binding {
+    /// The tissue element the vertex lies in (or nearest to) at rest, for `Embedded` and
+    /// `Blended` vertices: the skin and lips, whose rest positions belong to the face's
+    /// material space; `None` for vertices that only a bone moves (teeth, the deep mouth).
+    pub fn element(&self) -> Option<u32> {
+        match self {
+            Binding::Embedded { element, .. } | Binding::Blended { element, .. } => Some(*element),
+            Binding::Rigid(_) => None,
+        }
+    }
+
+    /// The share of the vertex's motion that the tissue gives (1 embedded, 0 rigid).
+    pub fn embedded_share(&self) -> f64 {
+        match self {
+            Binding::Embedded { .. } => 1.0,
+            Binding::Blended { embedded, .. } => *embedded,
+            Binding::Rigid(_) => 0.0,
+        }
+    }
 }
 
 /// The artist's surface: a subset of the rig's vertices and the faces among them.
@@ -79,6 +116,20 @@ impl FaceModel {
                     interpolate(&self.mesh.tets[*element as usize], weights, x)
                 }
                 Binding::Rigid(bone) => bones.target(*bone, &self.jaw_pivot, rest),
+                Binding::Blended {
+                    element,
+                    weights,
+                    bone,
+                    embedded,
+                } => {
+                    let rigid = bones.target(*bone, &self.jaw_pivot, rest);
+                    if *embedded == 0.0 {
+                        rigid
+                    } else {
+                        let soft = interpolate(&self.mesh.tets[*element as usize], weights, x);
+                        rigid + (soft - rigid) * *embedded
+                    }
+                }
             })
             .collect()
     }

@@ -10,7 +10,6 @@ use nalgebra::Point3;
 use serde::{Deserialize, Serialize};
 
 use crate::model::FaceModel;
-use crate::model::face::Binding;
 
 /// How values map to colours.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -118,8 +117,9 @@ impl FieldSource for Displacement {
     }
 }
 
-/// det F of the element each render vertex is embedded in (1 for bone-bound vertices):
-/// where the tissue is compressed (< 1) or stretched (> 1).
+/// det F of the element each render vertex is embedded in (1 for bone-bound vertices, blended
+/// toward 1 by the bone's share for skin blended onto the skull): where the tissue is
+/// compressed (< 1) or stretched (> 1).
 pub struct VolumeRatio;
 
 impl FieldSource for VolumeRatio {
@@ -132,9 +132,12 @@ impl FieldSource for VolumeRatio {
             .render
             .bindings
             .iter()
-            .map(|b| match b {
-                Binding::Embedded { element, .. } => input.volume_ratio[*element as usize] as f32,
-                Binding::Rigid(_) => 1.0,
+            .map(|b| match b.element() {
+                Some(e) => {
+                    let s = b.embedded_share();
+                    (s * input.volume_ratio[e as usize] + (1.0 - s)) as f32
+                }
+                None => 1.0,
             })
             .collect();
         let dev = values
