@@ -119,6 +119,9 @@ pub struct SimState {
     /// The barrier stiffness κ the last contact solve ended with (`None`: solved without
     /// contact); part of the energy that sensitivities differentiate.
     pub(crate) contact_stiffness: Option<f64>,
+    /// Whether the last contact solve ended with active pairs: the contact gate then goes
+    /// straight to the full contact solve ([`super::contact_gate`]).
+    pub(crate) contact_active: bool,
 }
 
 impl SimState {
@@ -317,6 +320,7 @@ impl Simulator {
             spare: Vec::new(),
             bones: BonePose::default(),
             contact_stiffness: None,
+            contact_active: false,
         }
     }
 
