@@ -57,6 +57,12 @@ pub struct ContactBenchRow {
     pub gate: Option<ContactGate>,
     /// Frames whose contact solve the gate skipped (certified contact-free).
     pub skipped: usize,
+    /// Frames where the gate tried contact-free and refused the result (the attempt's time
+    /// wasted before the full solve).
+    pub refused: usize,
+    /// Median time in the gate per frame (its attempt and checks; the whole solve for a
+    /// skipped frame).
+    pub gate_ms: f64,
     pub frames: usize,
     /// Frames whose solve returned an error (inverted elements, crossings, …).
     pub failures: usize,
@@ -150,6 +156,11 @@ pub fn bench(model: &FaceModel, frames: usize) -> Result<Vec<ContactBenchRow>, S
                 .iter()
                 .filter(|s| s.contact.as_ref().is_some_and(|c| c.gate.skipped()))
                 .count(),
+            refused: solved
+                .iter()
+                .filter(|s| s.contact.as_ref().is_some_and(|c| c.gate.refused()))
+                .count(),
+            gate_ms: contact_ms(&|c| c.gate_time),
             frames,
             failures: outcomes.len() - solved.len(),
             converged: solved.iter().filter(|s| s.converged()).count(),
@@ -219,11 +230,11 @@ pub fn contact_label(r: &ContactBenchRow) -> &'static str {
 /// The rows as a Markdown table.
 pub fn table(rows: &[ContactBenchRow]) -> String {
     let mut out = String::from(
-        "| sequence | preset | contact | step | frames ok | skipped | converged | frame ms | iterations | broad phase ms | barrier ms | CCD ms | linear ms | active pairs | lists built | pairs per step |\n|---|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+        "| sequence | preset | contact | step | frames ok | skipped | refused | gate ms | converged | frame ms | iterations | broad phase ms | barrier ms | CCD ms | linear ms | active pairs | lists built | pairs per step |\n|---|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
     );
     for r in rows {
         out += &format!(
-            "| {} | {} | {} | {} | {}/{} | {} | {} | {:.1} | {:.0} | {:.1} | {:.1} | {:.1} | {:.1} | {:.0} | {:.0} | {:.0} |\n",
+            "| {} | {} | {} | {} | {}/{} | {} | {} | {:.1} | {} | {:.1} | {:.0} | {:.1} | {:.1} | {:.1} | {:.1} | {:.0} | {:.0} | {:.0} |\n",
             r.sequence.name(),
             r.quality,
             contact_label(r),
@@ -231,6 +242,8 @@ pub fn table(rows: &[ContactBenchRow]) -> String {
             r.frames - r.failures,
             r.frames,
             r.skipped,
+            r.refused,
+            r.gate_ms,
             r.converged,
             r.frame_ms,
             r.iterations,

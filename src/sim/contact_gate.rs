@@ -79,6 +79,17 @@ impl GateOutcome {
     pub fn skipped(self) -> bool {
         self == GateOutcome::Skipped
     }
+
+    /// The contact-free attempt ran and its result was refused (its time was wasted).
+    pub fn refused(self) -> bool {
+        matches!(
+            self,
+            GateOutcome::ContactFreeFailed
+                | GateOutcome::Near
+                | GateOutcome::Crossing
+                | GateOutcome::PathCrosses
+        )
+    }
 }
 
 /// The attempt's result: a certified solve, or why not.
