@@ -19,10 +19,10 @@
 //! from the original state.
 //!
 //! The attempt costs a contact-free solve (tens of ms on the coarse sample) plus the checks;
-//! a full contact solve costs hundreds. To not pay the attempt where it is bound to be
-//! refused, it is not tried when the state's last full contact solve ended with a pair well
-//! inside d̂ (lips pressed stay pressed from one frame of a drag to the next); after a full
-//! solve that ends apart, the next frame tries again.
+//! a full contact solve costs hundreds. To not pay the attempt on every frame where it is
+//! bound to be refused (lips pressed stay pressed from one frame of a drag to the next), the
+//! state keeps a backoff: after `n` refusals in a row the next `2ⁿ − 1` frames (at most 15)
+//! go straight to the full solve; an accepted attempt resets it.
 
 use std::time::{Duration, Instant};
 
@@ -59,9 +59,9 @@ pub enum GateOutcome {
     Off,
     /// The contact-free result was certified and kept: no contact machinery ran.
     Skipped,
-    /// Not tried: the state's last solve was a full contact solve that ended with a pair
-    /// well inside the barrier's range. The full solve ran.
-    StartInContact,
+    /// Not tried: the last attempts on this state's sequence were refused, and the gate
+    /// waits a few frames before trying again ([`Backoff`]). The full solve ran.
+    Backoff,
     /// The contact-free solve itself failed (e.g. folded elements). The full solve ran.
     ContactFreeFailed,
     /// Refused: pairs within d̂ at the contact-free result push hard enough that the
@@ -123,10 +123,28 @@ impl Simulator {
         state: &mut SimState,
         settings: &SolveSettings,
     ) -> Result<Attempt, SimError> {
-        let start = Instant::now();
-        if state.contact_active {
-            return Ok(Attempt::Refused(GateOutcome::StartInContact));
+        if state.gate_backoff.wait > 0 {
+            state.gate_backoff.wait -= 1;
+            return Ok(Attempt::Refused(GateOutcome::Backoff));
         }
+        let attempt = self.attempt_contact_free(model, frame, bones, state, settings)?;
+        match &attempt {
+            Attempt::Accepted(_) => state.gate_backoff = Backoff::default(),
+            Attempt::Refused(_) => state.gate_backoff.refused(),
+        }
+        Ok(attempt)
+    }
+
+    /// The attempt itself: `state` holds the result if it is accepted, else is untouched.
+    fn attempt_contact_free(
+        &self,
+        model: &ContactModel,
+        frame: &Frame,
+        bones: &BonePose,
+        state: &mut SimState,
+        settings: &SolveSettings,
+    ) -> Result<Attempt, SimError> {
+        let start = Instant::now();
         let face = &model.face;
         let mut trial = state.clone();
         let Ok(mut stats) = self.solve_contact_free(frame, bones, &mut trial, settings) else {
@@ -201,7 +219,6 @@ impl Simulator {
         *state = trial;
         state.bones = *bones;
         state.contact_stiffness = Some(kappa);
-        state.contact_active = false;
         stats.energy += barrier;
         stats.residual = residual;
         if let Some(last) = stats.energy_history.last_mut() {
@@ -220,16 +237,25 @@ impl Simulator {
     }
 }
 
-/// Whether a full contact solve's result counts as "in contact" for the next frame's gate:
-/// a pair inside 0.9·d̂ (lips pressed together stay pressed from one
-/// frame of a drag to the next, so trying contact-free there is wasted). Pairs that only
-/// graze d̂ do not count: there the contact-free result often passes.
-pub(crate) fn in_contact(stats: &ContactStats, dhat: f64) -> bool {
-    stats.active_pairs > 0 && stats.min_distance < IN_CONTACT * dhat
+/// How many frames the gate waits before trying again: after `n` refusals in a row it
+/// goes straight to the full solve for `2ⁿ − 1` frames (1, 3, 7, then 15 at most), so a
+/// sequence in persistent contact (a drag with the lips pressed) wastes a few attempts, not
+/// one per frame, while one that separates is tried again soon.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub(crate) struct Backoff {
+    refusals: u32,
+    pub(crate) wait: u32,
 }
 
-/// "Well inside the barrier's range": closer than this fraction of d̂.
-const IN_CONTACT: f64 = 0.9;
+impl Backoff {
+    fn refused(&mut self) {
+        self.refusals = (self.refusals + 1).min(MAX_BACKOFF);
+        self.wait = (1 << self.refusals) - 1;
+    }
+}
+
+/// Refusals in a row beyond which the wait stops growing (15 frames).
+const MAX_BACKOFF: u32 = 4;
 
 /// Records in a full solve's stats why the gate let it run and the time the attempt
 /// before it took (wasted).
@@ -374,8 +400,8 @@ mod tests {
             )
         };
         assert!(refused(outcomes[0]), "{outcomes:?}");
-        // Pressed well inside d̂: the next frame goes straight to the full solve.
-        assert_eq!(outcomes[1], GateOutcome::StartInContact, "{outcomes:?}");
+        // Refused once: the next frame goes straight to the full solve.
+        assert_eq!(outcomes[1], GateOutcome::Backoff, "{outcomes:?}");
 
         sim.set_contact_gate(ContactGate::Always);
         let mut always = sim.rest_state();
@@ -383,6 +409,19 @@ mod tests {
             solve(&sim, &field, pose, &mut always, &settings);
         }
         assert_eq!(gated.flat_positions(), always.flat_positions());
+    }
+
+    /// Refusals in a row wait 1, 3, 7, then 15 frames; an acceptance resets.
+    #[test]
+    fn the_backoff_doubles_up_to_fifteen_frames() {
+        let mut b = super::Backoff::default();
+        let waits: Vec<u32> = (0..6)
+            .map(|_| {
+                b.refused();
+                b.wait
+            })
+            .collect();
+        assert_eq!(waits, [1, 3, 7, 15, 15, 15]);
     }
 
     /// Same inputs from the same start give bitwise the same result, skipped or not.

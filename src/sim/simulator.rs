@@ -119,9 +119,9 @@ pub struct SimState {
     /// The barrier stiffness κ the last contact solve ended with (`None`: solved without
     /// contact); part of the energy that sensitivities differentiate.
     pub(crate) contact_stiffness: Option<f64>,
-    /// Whether the last contact solve ended with active pairs: the contact gate then goes
-    /// straight to the full contact solve ([`super::contact_gate`]).
-    pub(crate) contact_active: bool,
+    /// When the contact gate tries contact-free again after refusals
+    /// ([`super::contact_gate::Backoff`]).
+    pub(crate) gate_backoff: super::contact_gate::Backoff,
 }
 
 impl SimState {
@@ -320,7 +320,7 @@ impl Simulator {
             spare: Vec::new(),
             bones: BonePose::default(),
             contact_stiffness: None,
-            contact_active: false,
+            gate_backoff: Default::default(),
         }
     }
 

@@ -13,7 +13,7 @@ use serde::{Deserialize, Serialize};
 
 use super::attachment::{BonePose, RigidMotion};
 use super::contact::{ContactModel, ContactSolve, ContactStats};
-use super::contact_gate::{Attempt, ContactGate, GateOutcome, in_contact, note_refusal};
+use super::contact_gate::{Attempt, ContactGate, GateOutcome, note_refusal};
 use super::shape_targeting::LocalStep;
 use super::simulator::{SimError, SimState, Simulator};
 use super::tensor::SymTensor;
@@ -299,7 +299,6 @@ impl Simulator {
             let mut stats = self.solve_stage(&frame, None, bones, state, settings)?;
             state.bones = *bones;
             state.contact_stiffness = None;
-            state.contact_active = false;
             stats.wall_time = start.elapsed();
             return Ok(stats);
         };
@@ -322,10 +321,6 @@ impl Simulator {
             Ok(mut stats) => {
                 note_refusal(&mut stats, gate, attempt_time);
                 stats.wall_time = start.elapsed();
-                state.contact_active = stats
-                    .contact
-                    .as_ref()
-                    .is_some_and(|c| in_contact(c, model.face.dhat()));
                 Ok(stats)
             }
             Err(SimError::Inverted {
