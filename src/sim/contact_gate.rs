@@ -94,7 +94,7 @@ impl GateOutcome {
 
 /// The attempt's result: a certified solve, or why not.
 pub(crate) enum Attempt {
-    Accepted(SolveStats),
+    Accepted(Box<SolveStats>),
     Refused(GateOutcome),
 }
 
@@ -233,7 +233,7 @@ impl Simulator {
             gate_time: start.elapsed(),
             ..ContactStats::default()
         });
-        Ok(Attempt::Accepted(stats))
+        Ok(Attempt::Accepted(Box::new(stats)))
     }
 }
 

@@ -308,7 +308,8 @@ impl Simulator {
             ContactGate::Always => (GateOutcome::Off, Duration::ZERO),
             ContactGate::WhenNeeded => {
                 match self.try_contact_free(model, &frame, bones, state, settings)? {
-                    Attempt::Accepted(mut stats) => {
+                    Attempt::Accepted(stats) => {
+                        let mut stats = *stats;
                         stats.wall_time = start.elapsed();
                         return Ok(stats);
                     }
