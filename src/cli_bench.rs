@@ -101,7 +101,7 @@ pub fn bench_tradeoff(args: &TradeoffArgs) -> Result<()> {
             "{} {} contact {}: {}",
             r.lod.name(),
             r.quality.name(),
-            if r.contact { "on" } else { "off" },
+            facesim::bench::tradeoff::contact_label(r.gate),
             r.errors.join("; ")
         );
     }

@@ -2,9 +2,14 @@
 //! a face, where the contact time goes (broad phase, barrier, CCD, contact-aware linear
 //! algebra), and the low-rank contact step against refactoring `L + K` every step.
 //!
-//! The frames are a slider drag: a sequence of mouth poses (lips pressing, pursing and
-//! rolling in while the jaw opens a little and closes again), each frame warm-started from
-//! the last, as in the editor.
+//! Two sequences, each frame warm-started from the last as in the editor: a slider drag
+//! (lips pressing, pursing and rolling in while the jaw opens a little and closes again),
+//! and subtle lip motion (a light purse and press, the jaw clenched a hair: the closed lips
+//! graze d̂ with negligible force, where the contact gate skips the contact machinery).
+//! Contact rows run with the gate off ("always") and on ("when needed"), so the table shows
+//! what skipping saves and what the refused attempts cost. (Opening the jaw is no case for
+//! skipping on the sample: contact-free, the mouth's lining moves into the upper teeth from
+//! 0.02 rad on.)
 
 use std::time::Duration;
 
@@ -13,14 +18,51 @@ use serde::Serialize;
 use crate::contact::drive::{LipField, MouthPose, run_sequence};
 use crate::contact::face::{FaceContact, FaceContactSettings};
 use crate::model::FaceModel;
-use crate::sim::{ContactStep, Quality, SimError, Simulator, SolveStats};
+use crate::sim::{ContactGate, ContactStep, Quality, SimError, Simulator, SolveStats};
+
+/// The frame sequences the benchmark drives.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Sequence {
+    /// [`drag_pose`]: the lips press together, contact active in most frames.
+    Drag,
+    /// [`subtle_pose`]: small lip motion, the closed lips grazing d̂.
+    Subtle,
+}
+
+impl Sequence {
+    pub fn name(self) -> &'static str {
+        match self {
+            Sequence::Drag => "drag",
+            Sequence::Subtle => "subtle",
+        }
+    }
+
+    pub fn pose(self, k: usize, count: usize) -> MouthPose {
+        match self {
+            Sequence::Drag => drag_pose(k, count),
+            Sequence::Subtle => subtle_pose(k, count),
+        }
+    }
+}
 
 /// One configuration's frames, summarized by medians over frames.
 #[derive(Clone, Debug, Serialize)]
 pub struct ContactBenchRow {
+    pub sequence: Sequence,
     pub quality: Quality,
     pub contact: bool,
     pub step: Option<ContactStep>,
+    /// The contact gate (`None` with contact off).
+    pub gate: Option<ContactGate>,
+    /// Frames whose contact solve the gate skipped (certified contact-free).
+    pub skipped: usize,
+    /// Frames where the gate tried contact-free and refused the result (the attempt's time
+    /// wasted before the full solve).
+    pub refused: usize,
+    /// Median time in the gate per frame (its attempt and checks; the whole solve for a
+    /// skipped frame).
+    pub gate_ms: f64,
     pub frames: usize,
     /// Frames whose solve returned an error (inverted elements, crossings, …).
     pub failures: usize,
@@ -49,6 +91,18 @@ pub fn drag_pose(k: usize, count: usize) -> MouthPose {
     }
 }
 
+/// The subtle sequence's pose at frame `k` of `count`: a purse rising to 0.3 and back, a
+/// press growing to 0.1, the jaw clenching to 0.01 rad.
+pub fn subtle_pose(k: usize, count: usize) -> MouthPose {
+    let t = (k + 1) as f64 / count as f64;
+    MouthPose {
+        jaw_open: -0.01 * t,
+        purse: 0.3 * (std::f64::consts::PI * t).sin(),
+        press: 0.1 * t,
+        ..MouthPose::default()
+    }
+}
+
 fn median(mut v: Vec<f64>) -> f64 {
     if v.is_empty() {
         return f64::NAN;
@@ -61,21 +115,26 @@ fn ms(d: Duration) -> f64 {
     d.as_secs_f64() * 1e3
 }
 
-/// Runs the drag of `frames` frames under every preset with contact on and off, and the
-/// interactive preset with the refactoring contact step.
+/// Runs both sequences of `frames` frames under every preset with contact off, on with the
+/// gate off and on with the gate on, and the drag at the interactive preset with the
+/// refactoring contact step (gate off).
 pub fn bench(model: &FaceModel, frames: usize) -> Result<Vec<ContactBenchRow>, SimError> {
     let face = FaceContact::new(model, &FaceContactSettings::default())?;
     let field = LipField::new(model, &face, 1.5);
     let mut sim = model.simulator()?;
     sim.set_contact(face)?;
     let mut rows = Vec::new();
-    let run = |sim: &Simulator, quality: Quality, contact: bool, step: Option<ContactStep>| {
+    let run = |sim: &Simulator,
+               sequence: Sequence,
+               quality: Quality,
+               contact: bool,
+               step: ContactStep| {
         let settings = crate::sim::SolveSettings {
             contact,
             ..quality.settings()
         };
         let outcomes = run_sequence(sim, frames, &settings, |k| {
-            let pose = drag_pose(k, frames);
+            let pose = sequence.pose(k, frames);
             (field.actuations(&pose), pose.bones())
         });
         let solved: Vec<&SolveStats> = outcomes
@@ -86,10 +145,22 @@ pub fn bench(model: &FaceModel, frames: usize) -> Result<Vec<ContactBenchRow>, S
         let contact_ms = |f: &dyn Fn(&crate::sim::ContactStats) -> Duration| {
             per(&|s| s.contact.as_ref().map_or(0.0, |c| ms(f(c))))
         };
+        let in_contact = contact && sim.contact().is_some();
         ContactBenchRow {
+            sequence,
             quality,
             contact,
-            step,
+            step: in_contact.then_some(step),
+            gate: in_contact.then(|| sim.contact_gate()).flatten(),
+            skipped: solved
+                .iter()
+                .filter(|s| s.contact.as_ref().is_some_and(|c| c.gate.skipped()))
+                .count(),
+            refused: solved
+                .iter()
+                .filter(|s| s.contact.as_ref().is_some_and(|c| c.gate.refused()))
+                .count(),
+            gate_ms: contact_ms(&|c| c.gate_time),
             frames,
             failures: outcomes.len() - solved.len(),
             converged: solved.iter().filter(|s| s.converged()).count(),
@@ -112,34 +183,67 @@ pub fn bench(model: &FaceModel, frames: usize) -> Result<Vec<ContactBenchRow>, S
             }),
         }
     };
-    for quality in Quality::ALL {
-        rows.push(run(&sim, quality, false, None));
-        rows.push(run(&sim, quality, true, Some(ContactStep::LowRankUpdate)));
+    for sequence in [Sequence::Drag, Sequence::Subtle] {
+        for quality in Quality::ALL {
+            rows.push(run(
+                &sim,
+                sequence,
+                quality,
+                false,
+                ContactStep::LowRankUpdate,
+            ));
+            for gate in [ContactGate::Always, ContactGate::WhenNeeded] {
+                sim.set_contact_gate(gate);
+                rows.push(run(
+                    &sim,
+                    sequence,
+                    quality,
+                    true,
+                    ContactStep::LowRankUpdate,
+                ));
+            }
+        }
     }
+    sim.set_contact_gate(ContactGate::Always);
     sim.set_contact_step(ContactStep::Refactor);
     rows.push(run(
         &sim,
+        Sequence::Drag,
         Quality::Interactive,
         true,
-        Some(ContactStep::Refactor),
+        ContactStep::Refactor,
     ));
     sim.set_contact_step(ContactStep::LowRankUpdate);
+    sim.set_contact_gate(ContactGate::default());
     Ok(rows)
+}
+
+/// "off", "on (always)" or "on (when needed)".
+pub fn contact_label(r: &ContactBenchRow) -> &'static str {
+    match (r.contact, r.gate) {
+        (false, _) => "off",
+        (true, Some(ContactGate::WhenNeeded)) => "on (when needed)",
+        (true, _) => "on (always)",
+    }
 }
 
 /// The rows as a Markdown table.
 pub fn table(rows: &[ContactBenchRow]) -> String {
     let mut out = String::from(
-        "| preset | contact | step | frames ok | converged | frame ms | iterations | broad phase ms | barrier ms | CCD ms | linear ms | active pairs | lists built | pairs per step |\n|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+        "| sequence | preset | contact | step | frames ok | skipped | refused | gate ms | converged | frame ms | iterations | broad phase ms | barrier ms | CCD ms | linear ms | active pairs | lists built | pairs per step |\n|---|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
     );
     for r in rows {
         out += &format!(
-            "| {} | {} | {} | {}/{} | {} | {:.1} | {:.0} | {:.1} | {:.1} | {:.1} | {:.1} | {:.0} | {:.0} | {:.0} |\n",
+            "| {} | {} | {} | {} | {}/{} | {} | {} | {:.1} | {} | {:.1} | {:.0} | {:.1} | {:.1} | {:.1} | {:.1} | {:.0} | {:.0} | {:.0} |\n",
+            r.sequence.name(),
             r.quality,
-            if r.contact { "on" } else { "off" },
+            contact_label(r),
             r.step.map_or("-".to_string(), |s| format!("{s:?}")),
             r.frames - r.failures,
             r.frames,
+            r.skipped,
+            r.refused,
+            r.gate_ms,
             r.converged,
             r.frame_ms,
             r.iterations,
@@ -152,16 +256,28 @@ pub fn table(rows: &[ContactBenchRow]) -> String {
             r.near_pairs,
         );
     }
-    for q in Quality::ALL {
-        let find = |c: bool| {
-            rows.iter()
-                .find(|r| r.quality == q && r.contact == c && r.step != Some(ContactStep::Refactor))
-        };
-        if let (Some(off), Some(on)) = (find(false), find(true)) {
-            out += &format!(
-                "\n{q}: contact on / off = {:.2}× per frame",
-                on.frame_ms / off.frame_ms
-            );
+    for sequence in [Sequence::Drag, Sequence::Subtle] {
+        for q in Quality::ALL {
+            let find = |c: bool, gate: Option<ContactGate>| {
+                rows.iter().find(|r| {
+                    r.sequence == sequence
+                        && r.quality == q
+                        && r.contact == c
+                        && r.gate == gate
+                        && r.step != Some(ContactStep::Refactor)
+                })
+            };
+            let off = find(false, None);
+            let always = find(true, Some(ContactGate::Always));
+            let needed = find(true, Some(ContactGate::WhenNeeded));
+            if let (Some(off), Some(always), Some(needed)) = (off, always, needed) {
+                out += &format!(
+                    "\n{}, {q}: contact on (always) / off = {:.2}×, on (when needed) / off = {:.2}× per frame",
+                    sequence.name(),
+                    always.frame_ms / off.frame_ms,
+                    needed.frame_ms / off.frame_ms
+                );
+            }
         }
     }
     out.push('\n');

@@ -7,6 +7,11 @@
 //! measured where the artist looks: per render vertex, in millimetres. Per configuration:
 //! time per frame (median, p95), mean and max vertex error over the frames, frames whose
 //! render lips, mouth or teeth cross, and the largest change of tissue volume.
+//!
+//! Contact runs two ways: "always" (every frame pays the full contact solve) and "when
+//! needed" (the contact gate keeps a certified contact-free result, see
+//! [`crate::sim::contact_gate`]), so the table shows what skipping saves and that it costs
+//! no accuracy. The reference always runs the full contact solve.
 
 use nalgebra::Point3;
 use serde::{Deserialize, Serialize};
@@ -17,7 +22,7 @@ use crate::model::{FaceModel, Lod};
 use crate::plot::Canvas;
 use crate::plot::scatter::{Chart, PALETTE, Series, draw};
 use crate::rig::ExpressionCode;
-use crate::sim::{Quality, SimError, Simulator, SolveSettings};
+use crate::sim::{ContactGate, Quality, SimError, Simulator, SolveSettings};
 
 use super::percentile;
 use super::sequence::solve_codes;
@@ -100,19 +105,24 @@ pub struct Run {
     pub crossing_frames: usize,
     /// Largest |tissue volume / rest volume − 1| over the frames.
     pub max_volume_change: f64,
+    /// Frames whose contact solve the gate skipped.
+    pub skipped: usize,
 }
 
-/// Solves `codes` in order on `face` (warm-started; see [`solve_codes`]).
+/// Solves `codes` in order on `face` (warm-started; see [`solve_codes`]), with contact
+/// gated by `gate` when `settings.contact` is on.
 pub fn run(
     face: &TradeoffFace,
     codes: &[Codes],
     settings: &SolveSettings,
+    gate: ContactGate,
 ) -> Result<Run, SimError> {
     let mut sim: Simulator = face.model.simulator()?;
     let checker = FaceContact::new(face.model, &FaceContactSettings::default())
         .map_err(|e| SimError::Setup(format!("contact surfaces: {e}")))?;
     if settings.contact {
         sim.set_contact(checker.clone())?;
+        sim.set_contact_gate(gate);
     }
     let rest_volume: f64 = face.model.mesh.volumes().iter().sum();
     let mut out = Run::default();
@@ -124,6 +134,8 @@ pub fn run(
                 let x = state.flat_positions();
                 out.iterations.push(stats.iterations);
                 out.converged += usize::from(stats.converged());
+                out.skipped +=
+                    usize::from(stats.contact.as_ref().is_some_and(|c| c.gate.skipped()));
                 checker.positions(x, &frame.bones, &mut y);
                 out.crossing_frames += usize::from(!checker.new_crossings(&y).is_empty());
                 let volume = tissue_volume(&face.model.mesh.tets, x);
@@ -170,8 +182,14 @@ pub struct TradeRow {
     pub elements: usize,
     pub quality: Quality,
     pub contact: bool,
+    /// The contact gate (`None` with contact off).
+    #[serde(default)]
+    pub gate: Option<ContactGate>,
     pub frames: usize,
     pub failed: usize,
+    /// Frames whose contact solve the gate skipped.
+    #[serde(default)]
+    pub skipped: usize,
     pub converged: usize,
     pub median_ms: f64,
     pub p95_ms: f64,
@@ -186,11 +204,12 @@ pub struct TradeRow {
     pub errors: Vec<String>,
 }
 
-/// The row of `run` of `face` at `quality`/`contact` against `reference`.
+/// The row of `run` of `face` at `quality`, contact `gate` (`None`: off) against
+/// `reference`.
 pub fn row(
     face: &TradeoffFace,
     quality: Quality,
-    contact: bool,
+    gate: Option<ContactGate>,
     run: &Run,
     reference: &Run,
 ) -> TradeRow {
@@ -211,9 +230,11 @@ pub fn row(
         lod: face.lod,
         elements: face.model.mesh.element_count(),
         quality,
-        contact,
+        contact: gate.is_some(),
+        gate,
         frames: run.frames.len(),
         failed: run.errors.len(),
+        skipped: run.skipped,
         converged: run.converged,
         median_ms: percentile(&run.ms, 0.5),
         p95_ms: percentile(&run.ms, 0.95),
@@ -235,8 +256,24 @@ pub fn row(
     }
 }
 
+/// The contact settings every mesh and preset runs with: off, on (always), on (when needed).
+pub const CONTACT_SETTINGS: [Option<ContactGate>; 3] = [
+    None,
+    Some(ContactGate::Always),
+    Some(ContactGate::WhenNeeded),
+];
+
+/// "off", "on (always)" or "on (when needed)".
+pub fn contact_label(gate: Option<ContactGate>) -> &'static str {
+    match gate {
+        None => "off",
+        Some(ContactGate::Always) => "on (always)",
+        Some(ContactGate::WhenNeeded) => "on (when needed)",
+    }
+}
+
 /// Every configuration of `faces` (coarsest first; the last is the reference's mesh) at
-/// every preset, contact off and on; `progress(message)` before each run.
+/// every preset and [`CONTACT_SETTINGS`]; `progress(message)` before each run.
 pub fn measure(
     faces: &[TradeoffFace],
     frames: usize,
@@ -250,23 +287,23 @@ pub fn measure(
         "reference: {} converged, contact on",
         finest.lod.name()
     ));
-    let reference = run(finest, &codes, &reference_settings())?;
+    let reference = run(finest, &codes, &reference_settings(), ContactGate::Always)?;
     let mut rows = Vec::new();
     for face in faces {
         for quality in Quality::ALL {
-            for contact in [false, true] {
+            for gate in CONTACT_SETTINGS {
                 progress(&format!(
                     "{} {} contact {}",
                     face.lod.name(),
                     quality.name(),
-                    if contact { "on" } else { "off" }
+                    contact_label(gate)
                 ));
                 let settings = SolveSettings {
-                    contact,
+                    contact: gate.is_some(),
                     ..quality.settings()
                 };
-                let r = run(face, &codes, &settings)?;
-                rows.push(row(face, quality, contact, &r, &reference));
+                let r = run(face, &codes, &settings, gate.unwrap_or_default())?;
+                rows.push(row(face, quality, gate, &r, &reference));
             }
         }
     }
@@ -276,18 +313,19 @@ pub fn measure(
 /// The trade table in markdown.
 pub fn table(rows: &[TradeRow]) -> String {
     let mut s = String::from(
-        "| mesh | elements | preset | contact | frames ok | converged | median ms | p95 ms | iterations | mean error mm | max error mm | crossing frames | max volume change |\n\
-         |---|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+        "| mesh | elements | preset | contact | frames ok | contact skipped | converged | median ms | p95 ms | iterations | mean error mm | max error mm | crossing frames | max volume change |\n\
+         |---|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
     );
     for r in rows {
         s += &format!(
-            "| {} | {} | {} | {} | {}/{} | {} | {:.1} | {:.1} | {} | {:.3} | {:.3} | {} | {:.2}% |\n",
+            "| {} | {} | {} | {} | {}/{} | {} | {} | {:.1} | {:.1} | {} | {:.3} | {:.3} | {} | {:.2}% |\n",
             r.lod.name(),
             r.elements,
             r.quality.name(),
-            if r.contact { "on" } else { "off" },
+            contact_label(r.gate),
             r.frames - r.failed,
             r.frames,
+            r.skipped,
             r.converged,
             r.median_ms,
             r.p95_ms,
@@ -307,11 +345,7 @@ pub fn table(rows: &[TradeRow]) -> String {
 pub fn plot(rows: &[TradeRow]) -> Result<Canvas, String> {
     let mut series: Vec<Series> = Vec::new();
     for r in rows.iter().filter(|r| r.mean_error_mm.is_finite()) {
-        let name = format!(
-            "{} contact {}",
-            r.lod.name(),
-            if r.contact { "on" } else { "off" }
-        );
+        let name = format!("{} contact {}", r.lod.name(), contact_label(r.gate));
         let k = match series.iter().position(|s| s.name == name) {
             Some(k) => k,
             None => {
@@ -368,7 +402,7 @@ mod tests {
         }];
         let (rows, reference) = measure(&faces, 3, &|_| {}).unwrap();
         assert!(reference.errors.is_empty(), "{:?}", reference.errors);
-        assert_eq!(rows.len(), 6);
+        assert_eq!(rows.len(), 9);
         for r in &rows {
             assert!(r.mean_error_mm.is_finite() && r.max_error_mm >= r.mean_error_mm);
             assert!(r.max_volume_change < 0.2, "{r:?}");
@@ -377,18 +411,26 @@ mod tests {
                 assert_eq!((r.failed, r.crossing_frames), (0, 0), "{r:?}");
             }
         }
-        let final_on = rows
-            .iter()
-            .find(|r| r.quality == Quality::Final && r.contact)
-            .unwrap();
-        let interactive_on = rows
-            .iter()
-            .find(|r| r.quality == Quality::Interactive && r.contact)
-            .unwrap();
+        let find = |q: Quality, gate: ContactGate| {
+            rows.iter()
+                .find(|r| r.quality == q && r.gate == Some(gate))
+                .unwrap()
+        };
+        let final_on = find(Quality::Final, ContactGate::Always);
+        let interactive_on = find(Quality::Interactive, ContactGate::Always);
+        // The gate skips only where the result is the equilibrium with contact: as close to
+        // the reference as the full contact solve.
+        let final_gated = find(Quality::Final, ContactGate::WhenNeeded);
+        assert!(final_gated.mean_error_mm < 0.05, "{final_gated:?}");
+        for r in &rows {
+            if r.gate != Some(ContactGate::WhenNeeded) {
+                assert_eq!(r.skipped, 0, "{r:?}");
+            }
+        }
         assert!(final_on.mean_error_mm < 0.05, "{final_on:?}");
         assert!(interactive_on.mean_error_mm >= final_on.mean_error_mm);
         let picture = plot(&rows).unwrap();
         assert!(picture.width > 0);
-        assert!(table(&rows).lines().count() == 8);
+        assert!(table(&rows).lines().count() == 11);
     }
 }

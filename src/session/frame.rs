@@ -23,6 +23,14 @@ pub struct FrameStats {
     pub total_ms: f64,
     /// Active contact pairs, where the solver handles contact (`None`: no contact in play).
     pub contacts: Option<usize>,
+    /// The contact solve was skipped: the contact-free result was certified to be the
+    /// equilibrium with contact (see `sim::contact_gate`).
+    #[serde(default)]
+    pub contact_skipped: bool,
+    /// No solve ran: the inputs were those the face's state was already solved for (a
+    /// display change, a repeated slider value), so the frame reuses that solve.
+    #[serde(default)]
+    pub reused: bool,
 }
 
 impl FrameStats {
@@ -34,6 +42,8 @@ impl FrameStats {
             solve_ms: stats.wall_time.as_secs_f64() * 1e3,
             total_ms,
             contacts: stats.contact.as_ref().map(|c| c.active_pairs),
+            contact_skipped: stats.contact.as_ref().is_some_and(|c| c.gate.skipped()),
+            reused: false,
         }
     }
 }

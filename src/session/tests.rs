@@ -190,6 +190,15 @@ fn solves_warm_start_from_the_last_frame() {
         "warm start must be at the solution: {:?}",
         warm.stats
     );
+    // Only the display changed: the frame reuses the solve (no solve ran), with the same
+    // geometry, and the new overlays computed.
+    assert!(warm.stats.reused && !cold.stats.reused, "{:?}", warm.stats);
+    assert_eq!(warm.positions, cold.positions);
+    assert_eq!(warm.stats.residual, cold.stats.residual);
+    // A new code solves again.
+    let g = s.submit(expression("mouthSmile_L", 0.5)).unwrap();
+    let moved = s.wait_generation(g, WAIT).unwrap();
+    assert!(!moved.stats.reused && moved.stats.iterations > 0);
     assert!(!warm.crosses.is_empty(), "the smile contracts elements");
     assert!(warm.crosses.iter().all(|a| a.contraction > 0.0));
 }

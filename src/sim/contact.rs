@@ -105,6 +105,14 @@ pub struct ContactStats {
     /// Time in contact-aware linear algebra (the Woodbury LU or the refactorization, the
     /// extra solves).
     pub linear_time: Duration,
+    /// Whether the contact gate skipped the contact machinery for this solve, or why not
+    /// ([`super::contact_gate`]).
+    #[serde(default)]
+    pub gate: super::contact_gate::GateOutcome,
+    /// Time in the gate's contact-free attempt and its checks (the whole solve when it was
+    /// kept; wasted when refused).
+    #[serde(default)]
+    pub gate_time: Duration,
 }
 
 /// Contact set up for a simulator: the face's surfaces and the block of `L⁻¹` over the
@@ -117,8 +125,9 @@ pub(crate) struct ContactModel {
     inverse_block: Vec<f64>,
     region: usize,
     /// Mean diagonal of `L` over the region: the stiffness scale for κ.
-    stiffness_scale: f64,
+    pub(crate) stiffness_scale: f64,
     pub(crate) step: ContactStep,
+    pub(crate) gate: super::contact_gate::ContactGate,
 }
 
 impl ContactModel {
@@ -165,6 +174,7 @@ impl ContactModel {
             region: r,
             stiffness_scale,
             step: ContactStep::default(),
+            gate: super::contact_gate::ContactGate::default(),
         }
     }
 }

@@ -6,6 +6,7 @@
 pub mod adjoint;
 pub mod attachment;
 pub mod contact;
+pub mod contact_gate;
 pub mod deformation;
 pub mod global_matrix;
 pub mod polar;
@@ -18,6 +19,7 @@ mod vector;
 pub use adjoint::Sensitivities;
 pub use attachment::{Attachments, Bone, BonePose, RigidMotion};
 pub use contact::{ContactStats, ContactStep};
+pub use contact_gate::{ContactGate, GateOutcome};
 pub use simulator::{SimConfig, SimError, SimState, Simulator};
 pub use solver::{Quality, SolveSettings, SolveStats, Termination};
 pub use tensor::SymTensor;

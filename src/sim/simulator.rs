@@ -119,6 +119,9 @@ pub struct SimState {
     /// The barrier stiffness κ the last contact solve ended with (`None`: solved without
     /// contact); part of the energy that sensitivities differentiate.
     pub(crate) contact_stiffness: Option<f64>,
+    /// When the contact gate tries contact-free again after refusals
+    /// ([`super::contact_gate::Backoff`]).
+    pub(crate) gate_backoff: super::contact_gate::Backoff,
 }
 
 impl SimState {
@@ -317,6 +320,7 @@ impl Simulator {
             spare: Vec::new(),
             bones: BonePose::default(),
             contact_stiffness: None,
+            gate_backoff: Default::default(),
         }
     }
 

@@ -13,6 +13,7 @@ use serde::{Deserialize, Serialize};
 
 use super::attachment::{BonePose, RigidMotion};
 use super::contact::{ContactModel, ContactSolve, ContactStats};
+use super::contact_gate::{Attempt, ContactGate, GateOutcome, note_refusal};
 use super::shape_targeting::LocalStep;
 use super::simulator::{SimError, SimState, Simulator};
 use super::tensor::SymTensor;
@@ -301,6 +302,73 @@ impl Simulator {
             stats.wall_time = start.elapsed();
             return Ok(stats);
         };
+        // Contact only when the surfaces can meet: a certified contact-free result is the
+        // equilibrium with contact too (see `contact_gate`).
+        let (gate, attempt_time) = match model.gate {
+            ContactGate::Always => (GateOutcome::Off, Duration::ZERO),
+            ContactGate::WhenNeeded => {
+                match self.try_contact_free(model, &frame, bones, state, settings)? {
+                    Attempt::Accepted(stats) => {
+                        let mut stats = *stats;
+                        stats.wall_time = start.elapsed();
+                        return Ok(stats);
+                    }
+                    Attempt::Refused(why) => (why, start.elapsed()),
+                }
+            }
+        };
+        let result = self.solve_with_contact(model, &frame, actuations, bones, state, settings);
+        match result {
+            Ok(mut stats) => {
+                note_refusal(&mut stats, gate, attempt_time);
+                stats.wall_time = start.elapsed();
+                Ok(stats)
+            }
+            Err(SimError::Inverted {
+                count,
+                first,
+                mut stats,
+            }) => {
+                note_refusal(&mut stats, gate, attempt_time);
+                stats.wall_time = start.elapsed();
+                Err(SimError::Inverted {
+                    count,
+                    first,
+                    stats,
+                })
+            }
+            Err(SimError::Intersecting { count, mut stats }) => {
+                note_refusal(&mut stats, gate, attempt_time);
+                stats.wall_time = start.elapsed();
+                Err(SimError::Intersecting { count, stats })
+            }
+            Err(e) => Err(e),
+        }
+    }
+
+    /// One contact-free solve at `bones` (the contact gate's attempt).
+    pub(super) fn solve_contact_free(
+        &self,
+        frame: &super::simulator::Frame,
+        bones: &BonePose,
+        state: &mut SimState,
+        settings: &SolveSettings,
+    ) -> Result<SolveStats, SimError> {
+        self.solve_stage(frame, None, bones, state, settings)
+    }
+
+    /// The full contact solve: the teeth moved to the new pose in collision-free stages,
+    /// the barrier in every stage, and the crossing check at the end.
+    fn solve_with_contact(
+        &self,
+        model: &ContactModel,
+        frame: &super::simulator::Frame,
+        actuations: &[SymTensor],
+        bones: &BonePose,
+        state: &mut SimState,
+        settings: &SolveSettings,
+    ) -> Result<SolveStats, SimError> {
+        let start = Instant::now();
 
         // Move the rigid contact surfaces to the new pose in stages that CCD certifies free
         // of crossings (with the tissue where it is), solving after each.
@@ -311,7 +379,12 @@ impl Simulator {
         loop {
             let mut s = 1.0;
             let start = lerp_pose(&from, bones, reached);
-            let gap = self.obstacle_gap(model, &state.x, &start)?;
+            // Only a pose change moves the teeth (an unchanged jaw needs no broad phase here).
+            let gap = if start == *bones {
+                model.face.dhat()
+            } else {
+                self.obstacle_gap(model, &state.x, &start)?
+            };
             loop {
                 let free = self.obstacles_free_fraction(
                     model,
@@ -344,7 +417,7 @@ impl Simulator {
             let pose = lerp_pose(&from, bones, s);
             let stage_frame;
             let f = if s == 1.0 {
-                &frame
+                frame
             } else {
                 stage_frame = self.frame(actuations, &pose)?;
                 &stage_frame
