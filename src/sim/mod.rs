@@ -8,6 +8,7 @@ pub mod attachment;
 pub mod contact;
 pub mod deformation;
 pub mod global_matrix;
+mod low_rank;
 pub mod polar;
 pub mod shape_targeting;
 pub mod simulator;
