@@ -29,17 +29,12 @@
 
 use std::time::{Duration, Instant};
 
-use faer::dyn_stack::{MemBuffer, MemStack};
-use faer::sparse::linalg::cholesky::{
-    CholeskySymbolicParams, LltRef, SymmetricOrdering, factorize_symbolic_cholesky,
-};
-use faer::sparse::{SparseColMat, Triplet};
-use faer::{Conj, Mat, Par, Side};
 use nalgebra::DMatrix;
 use serde::{Deserialize, Serialize};
 
 use super::attachment::BonePose;
-use super::global_matrix::{GlobalMatrix, SolveScratch};
+use super::global_matrix::GlobalMatrix;
+use super::low_rank::Curvature;
 use crate::contact::barrier::{initial_barrier_stiffness, update_barrier_stiffness};
 use crate::contact::face::{ContactBinding, FaceContact};
 use crate::contact::{
@@ -115,15 +110,11 @@ pub struct ContactStats {
     pub gate_time: Duration,
 }
 
-/// Contact set up for a simulator: the face's surfaces and the block of `L⁻¹` over the
-/// simulation vertices they touch.
+/// Contact set up for a simulator: the face's surfaces and the stiffness scale for κ. (The
+/// columns of `L⁻¹` over the region the low-rank steps read live in the simulator's
+/// [`super::low_rank::InverseColumns`], filled when contact is set up.)
 pub(crate) struct ContactModel {
     pub(crate) face: FaceContact,
-    /// Slot of every simulation vertex in the region (`u32::MAX` outside).
-    region_slot: Vec<u32>,
-    /// `(L⁻¹)` restricted to region vertices, `r × r` row-major.
-    inverse_block: Vec<f64>,
-    region: usize,
     /// Mean diagonal of `L` over the region: the stiffness scale for κ.
     pub(crate) stiffness_scale: f64,
     pub(crate) step: ContactStep,
@@ -132,46 +123,18 @@ pub(crate) struct ContactModel {
 
 impl ContactModel {
     pub(crate) fn new(face: FaceContact, global: &GlobalMatrix) -> Self {
-        let n = global.dimension();
-        let region_vertices = face.region_sim_vertices().to_vec();
-        let r = region_vertices.len();
-        let mut region_slot = vec![u32::MAX; n];
-        for (s, &v) in region_vertices.iter().enumerate() {
-            region_slot[v as usize] = s as u32;
-        }
-        // Columns of L⁻¹ for region vertices, three at a time (one per coordinate of one
-        // right-hand side); L is symmetric, so columns are rows.
-        let mut inverse_block = vec![0.0; r * r];
-        let mut scratch = global.scratch();
-        let mut rhs = vec![0.0; 3 * n];
-        for chunk in region_vertices.chunks(3).enumerate() {
-            let (c, vs) = chunk;
-            rhs.fill(0.0);
-            for (k, &v) in vs.iter().enumerate() {
-                rhs[3 * v as usize + k] = 1.0;
-            }
-            global.solve_in_place(&mut rhs, &mut scratch);
-            for (k, _) in vs.iter().enumerate() {
-                let col = 3 * c + k;
-                for (row, &w) in region_vertices.iter().enumerate() {
-                    inverse_block[row * r + col] = rhs[3 * w as usize + k];
-                }
-            }
-        }
-        let stiffness_scale = if r == 0 {
+        let region = face.region_sim_vertices();
+        let stiffness_scale = if region.is_empty() {
             1.0
         } else {
-            region_vertices
+            region
                 .iter()
                 .map(|&v| global.diagonal()[v as usize])
                 .sum::<f64>()
-                / r as f64
+                / region.len() as f64
         };
         Self {
             face,
-            region_slot,
-            inverse_block,
-            region: r,
             stiffness_scale,
             step: ContactStep::default(),
             gate: super::contact_gate::ContactGate::default(),
@@ -243,27 +206,9 @@ fn pull_back(face: &FaceContact, blocks: &[HessianBlock], n: usize) -> PulledBac
     PulledBackHessian { vertices, k }
 }
 
-/// The contact-aware `H₀⁻¹` of the current step.
-enum StepSolver {
-    /// No active pair: `L⁻¹`.
-    Plain,
-    /// `L⁻¹ − L⁻¹U·S⁻¹·K·UᵀL⁻¹`, `S = I + K·(G⊗I₃)`.
-    LowRank {
-        vertices: Vec<u32>,
-        k: DMatrix<f64>,
-        s: nalgebra::LU<f64, nalgebra::Dyn, nalgebra::Dyn>,
-    },
-    /// `(L⊗I₃ + K)⁻¹` factored anew.
-    Refactored {
-        symbolic: faer::sparse::linalg::cholesky::SymbolicCholesky<usize>,
-        values: Vec<f64>,
-    },
-}
-
 /// Per-solve contact state: positions, the active set, κ, the step's candidates and solver.
 pub(crate) struct ContactSolve<'a> {
     model: &'a ContactModel,
-    global: &'a GlobalMatrix,
     pub(crate) potential: BarrierPotential,
     kappa_max: f64,
     bbox: f64,
@@ -284,7 +229,7 @@ pub(crate) struct ContactSolve<'a> {
     y_trial: Vec<f64>,
     trial_collisions: Collisions,
     trial_barrier: f64,
-    solver: StepSolver,
+    curvature: Curvature,
     pub(crate) stats: ContactStats,
 }
 
@@ -292,7 +237,6 @@ impl<'a> ContactSolve<'a> {
     /// Starts at `x`: the active set, and κ balanced against the elastic gradient `g_el`.
     pub(crate) fn start(
         model: &'a ContactModel,
-        global: &'a GlobalMatrix,
         x: &[f64],
         bones: &BonePose,
         g_el: &[f64],
@@ -328,7 +272,6 @@ impl<'a> ContactSolve<'a> {
         let prev_min_distance2 = collisions.min_distance_squared();
         let mut solve = Self {
             model,
-            global,
             potential,
             kappa_max,
             bbox,
@@ -343,10 +286,10 @@ impl<'a> ContactSolve<'a> {
             y_trial: vec![0.0; 3 * m],
             trial_collisions: Collisions::default(),
             trial_barrier: 0.0,
-            solver: StepSolver::Plain,
+            curvature: Curvature::default(),
             stats,
         };
-        solve.update_solver(g_el.len() / 3)?;
+        solve.update_curvature(g_el.len() / 3)?;
         Ok(solve)
     }
 
@@ -479,104 +422,34 @@ impl<'a> ContactSolve<'a> {
         );
         self.prev_min_distance2 = min_d2;
         self.potential.stiffness = kappa;
-        self.update_solver(n)?;
+        self.update_curvature(n)?;
         Ok(self.energy())
     }
 
-    /// Rebuilds the contact-aware step solver at the current `x`.
-    fn update_solver(&mut self, n: usize) -> Result<(), ContactError> {
+    /// The barrier's curvature at the current `x`, pulled back to the simulation vertices.
+    fn update_curvature(&mut self, n: usize) -> Result<(), ContactError> {
         if self.collisions.is_empty() {
-            self.solver = StepSolver::Plain;
+            self.curvature = Curvature::default();
             return Ok(());
         }
         let t = Instant::now();
         let blocks =
             self.potential
                 .hessian(&self.collisions, &self.y, Projection::ClampEigenvalues)?;
-        self.stats.barrier_time += t.elapsed();
-        let t = Instant::now();
         let pulled = pull_back(&self.model.face, &blocks, n);
-        self.solver = match self.model.step {
-            ContactStep::LowRankUpdate => {
-                let a = pulled.vertices.len();
-                let r = self.model.region;
-                let slots: Vec<usize> = pulled
-                    .vertices
-                    .iter()
-                    .map(|&v| self.model.region_slot[v as usize] as usize)
-                    .collect();
-                // S = I + K·(G⊗I₃).
-                let mut g = DMatrix::<f64>::zeros(3 * a, 3 * a);
-                for (i, &si) in slots.iter().enumerate() {
-                    for (j, &sj) in slots.iter().enumerate() {
-                        let v = self.model.inverse_block[si * r + sj];
-                        for c in 0..3 {
-                            g[(3 * i + c, 3 * j + c)] = v;
-                        }
-                    }
-                }
-                let mut s = DMatrix::<f64>::identity(3 * a, 3 * a);
-                s.gemm(1.0, &pulled.k, &g, 1.0);
-                StepSolver::LowRank {
-                    vertices: pulled.vertices,
-                    k: pulled.k,
-                    s: s.lu(),
-                }
-            }
-            ContactStep::Refactor => refactor(self.global, &pulled, n)?,
-        };
-        self.stats.linear_time += t.elapsed();
+        self.curvature = Curvature::from_vertex_block(&pulled.vertices, pulled.k);
+        self.stats.barrier_time += t.elapsed();
         Ok(())
     }
 
-    /// `d ← H₀·d` with `H₀ = (L + K)⁻¹` (see the module doc).
-    pub(crate) fn apply_inverse(&mut self, d: &mut [f64], scratch: &mut SolveScratch) {
-        let global = self.global;
-        let t = Instant::now();
-        match &self.solver {
-            StepSolver::Plain => global.solve_in_place(d, scratch),
-            StepSolver::LowRank { vertices, k, s } => {
-                global.solve_in_place(d, scratch);
-                let a = vertices.len();
-                let za = nalgebra::DVector::from_iterator(
-                    3 * a,
-                    vertices
-                        .iter()
-                        .flat_map(|&v| (0..3).map(move |c| 3 * v as usize + c))
-                        .map(|i| d[i]),
-                );
-                let w = s
-                    .solve(&(k * za))
-                    .expect("S = I + K·G is invertible for PSD K and SPD G");
-                let mut t = vec![0.0; d.len()];
-                for (i, &v) in vertices.iter().enumerate() {
-                    for c in 0..3 {
-                        t[3 * v as usize + c] = w[3 * i + c];
-                    }
-                }
-                global.solve_in_place(&mut t, scratch);
-                for (di, ti) in d.iter_mut().zip(&t) {
-                    *di -= ti;
-                }
-            }
-            StepSolver::Refactored { symbolic, values } => {
-                let mut rhs = Mat::<f64>::zeros(d.len(), 1);
-                for (i, &v) in d.iter().enumerate() {
-                    rhs[(i, 0)] = v;
-                }
-                let mut stack = MemBuffer::new(symbolic.solve_in_place_scratch::<f64>(1, Par::Seq));
-                LltRef::new(symbolic, values).solve_in_place_with_conj(
-                    Conj::No,
-                    rhs.as_mut(),
-                    Par::Seq,
-                    MemStack::new(&mut stack),
-                );
-                for (i, v) in d.iter_mut().enumerate() {
-                    *v = rhs[(i, 0)];
-                }
-            }
-        }
-        self.stats.linear_time += t.elapsed();
+    /// `K = Wᵀ·[∇²B]₊·W` at the current `x` (empty without active pairs), for the step.
+    pub(crate) fn curvature(&self) -> &Curvature {
+        &self.curvature
+    }
+
+    /// How steps bring the curvature in.
+    pub(crate) fn step_mode(&self) -> ContactStep {
+        self.model.step
     }
 
     /// Fills the end-of-solve statistics.
@@ -586,74 +459,6 @@ impl<'a> ContactSolve<'a> {
         self.stats.stiffness = self.potential.stiffness;
         self.stats
     }
-}
-
-/// `L⊗I₃ + K` assembled and factored from scratch (the reference the low-rank update is
-/// measured against).
-fn refactor(
-    global: &GlobalMatrix,
-    pulled: &PulledBackHessian,
-    n: usize,
-) -> Result<StepSolver, ContactError> {
-    let lower = global.lower_entries();
-    let mut triplets = Vec::with_capacity(3 * lower.len() + pulled.k.len() / 2 + 1);
-    for e in lower {
-        for c in 0..3 {
-            triplets.push(Triplet::new(3 * e.row + c, 3 * e.col + c, e.val));
-        }
-    }
-    for (i, &vi) in pulled.vertices.iter().enumerate() {
-        for (j, &vj) in pulled.vertices.iter().enumerate() {
-            for r in 0..3 {
-                for c in 0..3 {
-                    let (gi, gj) = (3 * vi as usize + r, 3 * vj as usize + c);
-                    if gi >= gj {
-                        triplets.push(Triplet::new(gi, gj, pulled.k[(3 * i + r, 3 * j + c)]));
-                    }
-                }
-            }
-        }
-    }
-    let (symbolic, values) = factor_triplets(3 * n, &triplets)
-        .map_err(|e| ContactError::InvalidParameter(format!("factoring L + K failed: {e}")))?;
-    Ok(StepSolver::Refactored { symbolic, values })
-}
-
-/// Factors a lower-triangle `dim × dim` matrix given as triplets (symbolic and numeric).
-pub(crate) fn factor_triplets(
-    dim: usize,
-    triplets: &[Triplet<usize, usize, f64>],
-) -> Result<
-    (
-        faer::sparse::linalg::cholesky::SymbolicCholesky<usize>,
-        Vec<f64>,
-    ),
-    String,
-> {
-    let matrix = SparseColMat::<usize, f64>::try_new_from_triplets(dim, dim, triplets)
-        .map_err(|e| format!("{e:?}"))?;
-    let symbolic = factorize_symbolic_cholesky(
-        matrix.symbolic(),
-        Side::Lower,
-        SymmetricOrdering::Amd,
-        CholeskySymbolicParams::default(),
-    )
-    .map_err(|e| format!("{e:?}"))?;
-    let mut values = vec![0.0; symbolic.len_val()];
-    let mut stack =
-        MemBuffer::new(symbolic.factorize_numeric_llt_scratch::<f64>(Par::Seq, Default::default()));
-    symbolic
-        .factorize_numeric_llt(
-            &mut values,
-            matrix.as_ref(),
-            Side::Lower,
-            Default::default(),
-            Par::Seq,
-            MemStack::new(&mut stack),
-            Default::default(),
-        )
-        .map_err(|e| format!("{e:?}"))?;
-    Ok((symbolic, values))
 }
 
 #[cfg(test)]

@@ -9,6 +9,7 @@ pub mod contact;
 pub mod contact_gate;
 pub mod deformation;
 pub mod global_matrix;
+mod low_rank;
 pub mod polar;
 pub mod shape_targeting;
 pub mod simulator;

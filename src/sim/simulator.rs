@@ -11,7 +11,11 @@ use serde::{Deserialize, Serialize};
 use super::attachment::{Attachments, Bone, BonePose};
 use super::deformation::ElementOperator;
 use super::global_matrix::{FactorError, GlobalMatrix, SolveScratch};
-use super::shape_targeting::{Linearized, LocalStep, local_step};
+use super::low_rank::{Curvature, InverseColumns};
+use super::shape_targeting::{
+    BARRIER_VOLUME, Linearized, LocalStep, STEP_VOLUME_KEPT, barrier_curvature, local_step,
+    volume_step_limit,
+};
 use super::tensor::{SymTensor, TensorError};
 use crate::geometry::TetMesh;
 
@@ -32,6 +36,11 @@ pub enum SimError {
     NonFiniteBones(BonePose),
     #[error("state does not belong to this mesh ({got} positions for {expected} vertices)")]
     StateMismatch { expected: usize, got: usize },
+    #[error(
+        "the starting state has {0} folded element(s); start from the rest state or a frame \
+         that solved"
+    )]
+    FoldedStart(usize),
     #[error("state has a non-finite position at vertex {0}")]
     NonFiniteState(usize),
     #[error(
@@ -100,6 +109,9 @@ pub struct Simulator {
     pub(crate) config: SimConfig,
     /// Contact surfaces and their precomputed data, if set up.
     pub(crate) contact: Option<super::contact::ContactModel>,
+    /// Columns of `L⁻¹` for the vertices that stiff terms (contact, the volume barrier) have
+    /// touched: the low-rank step updates read them ([`super::low_rank`]).
+    pub(crate) inverse_columns: InverseColumns,
 }
 
 /// The simulated configuration, reused as the warm start of the next solve.
@@ -243,6 +255,7 @@ impl Simulator {
             incidence,
             config,
             contact: None,
+            inverse_columns: InverseColumns::default(),
         })
     }
 
@@ -259,6 +272,11 @@ impl Simulator {
             )));
         }
         self.contact = Some(super::contact::ContactModel::new(face, &self.global));
+        // The contact region's columns of L⁻¹, once, before the first solve needs them.
+        if let Some(c) = &self.contact {
+            self.inverse_columns
+                .get(&self.global, c.face.region_sim_vertices());
+        }
         Ok(())
     }
 
@@ -401,6 +419,40 @@ impl Simulator {
 
     pub(crate) fn deformation_gradient(&self, x: &[f64], element: usize) -> Matrix3<f64> {
         self.ops[element].deformation_gradient(&self.corners(x, element))
+    }
+
+    /// The longest fraction of the step `x → x + d` that leaves every element at least
+    /// [`STEP_VOLUME_KEPT`] of its volume (1 if the whole step does).
+    pub(crate) fn volume_step_limit(&self, x: &[f64], d: &[f64]) -> f64 {
+        (0..self.element_count())
+            .into_par_iter()
+            .with_min_len(CHUNK)
+            .map(|e| {
+                let f = self.deformation_gradient(x, e);
+                let df = self.deformation_gradient(d, e);
+                volume_step_limit(&f, &df, STEP_VOLUME_KEPT)
+            })
+            .reduce(|| 1.0, f64::min)
+    }
+
+    /// The volume barrier's curvature at `x` for the step solver: one rank-one term per
+    /// element near folding (`J < Ĵ`, see [`barrier_curvature`]), on its four corners.
+    pub(crate) fn volume_barrier_curvature(&self, x: &[f64], steps: &[LocalStep]) -> Curvature {
+        let terms = steps
+            .iter()
+            .enumerate()
+            .filter(|(_, s)| s.volume_ratio < BARRIER_VOLUME)
+            .filter_map(|(e, _)| {
+                let f = self.deformation_gradient(x, e);
+                let (c, cof) = barrier_curvature(&f, self.element_weights[e])?;
+                let tet = self.mesh.tets[e];
+                let column = (0..4)
+                    .map(|k| (tet[k], cof * self.ops[e].grads[k]))
+                    .collect();
+                Some((c, column))
+            })
+            .collect();
+        Curvature::from_rank_one(terms)
     }
 
     /// The local step for every element at `x` (parallel), warm-started from the rotations

@@ -12,8 +12,9 @@ use std::time::{Duration, Instant};
 use serde::{Deserialize, Serialize};
 
 use super::attachment::{BonePose, RigidMotion};
-use super::contact::{ContactModel, ContactSolve, ContactStats};
+use super::contact::{ContactModel, ContactSolve, ContactStats, ContactStep};
 use super::contact_gate::{Attempt, ContactGate, GateOutcome, note_refusal};
+use super::low_rank::StepInverse;
 use super::shape_targeting::LocalStep;
 use super::simulator::{SimError, SimState, Simulator};
 use super::tensor::SymTensor;
@@ -144,6 +145,10 @@ pub struct SolveStats {
     /// Time in the iteration loop (no setup or final checks): `iteration_time / iterations`
     /// is the cost of one iteration.
     pub iteration_time: Duration,
+    /// Most elements near folding (`det F` below the volume barrier's threshold, where its
+    /// curvature enters the steps) at any accepted iterate.
+    #[serde(default)]
+    pub near_folding: usize,
     /// What contact did (`None` when contact was off or not set up).
     #[serde(default)]
     pub contact: Option<ContactStats>,
@@ -534,7 +539,7 @@ impl Simulator {
         let mut g = vec![0.0; dim];
         self.gradient(frame, &state.x, &steps, &mut g);
         let mut contact = match model {
-            Some(m) => match ContactSolve::start(m, &self.global, &state.x, bones, &g) {
+            Some(m) => match ContactSolve::start(m, &state.x, bones, &g) {
                 Ok(c) => Some(c),
                 Err(e) => {
                     restore(state, steps, trial_steps);
@@ -551,6 +556,11 @@ impl Simulator {
             }
         }
         let mut residual = norm(&g) / scale;
+        let folded = steps.iter().filter(|s| !(s.volume_ratio > 0.0)).count();
+        if folded > 0 {
+            restore(state, steps, trial_steps);
+            return Err(SimError::FoldedStart(folded));
+        }
         if !energy.is_finite() || !residual.is_finite() {
             restore(state, steps, trial_steps);
             return Err(SimError::NonFiniteState(0));
@@ -563,6 +573,16 @@ impl Simulator {
             _ => History::new(settings.history, dim),
         };
         let mut scratch = self.solve_scratch();
+        // H₀ with the curvature L lacks (contact's barrier, the volume barrier), rebuilt at
+        // every accepted point.
+        let (mut step_inverse, mut near_folding) =
+            match self.step_inverse(&state.x, &steps, contact.as_mut()) {
+                Ok(built) => built,
+                Err(e) => {
+                    restore(state, steps, trial_steps);
+                    return Err(e);
+                }
+            };
         let mut d = vec![0.0; dim];
         let mut x_trial = vec![0.0; dim];
         let mut g_trial = vec![0.0; dim];
@@ -578,10 +598,7 @@ impl Simulator {
                 if iterations == settings.max_iterations {
                     break;
                 }
-                let mut h0 = |v: &mut [f64]| match contact.as_mut() {
-                    Some(c) => c.apply_inverse(v, &mut scratch),
-                    None => self.global.solve_in_place(v, &mut scratch),
-                };
+                let mut h0 = |v: &mut [f64]| step_inverse.apply(&self.global, v, &mut scratch);
                 global_time += history.direction(&mut h0, &g, &mut d);
                 let mut slope = dot(&g, &d);
                 if !(slope < 0.0) {
@@ -594,6 +611,7 @@ impl Simulator {
                     Some(c) => c.max_step(&d)?,
                     None => 1.0,
                 };
+                alpha = alpha.min(self.volume_step_limit(&state.x, &d));
                 let mut accepted = None;
                 if alpha > 0.0 {
                     for _ in 0..MAX_BACKTRACKS {
@@ -648,6 +666,9 @@ impl Simulator {
                 std::mem::swap(&mut state.x, &mut x_trial);
                 std::mem::swap(&mut g, &mut g_trial);
                 std::mem::swap(&mut steps, &mut trial_steps);
+                let (inverse, near) = self.step_inverse(&state.x, &steps, contact.as_mut())?;
+                step_inverse = inverse;
+                near_folding = near_folding.max(near);
                 energy = e;
                 residual = norm(&g) / scale;
                 iterations += 1;
@@ -680,6 +701,7 @@ impl Simulator {
             local_time,
             global_time,
             iteration_time,
+            near_folding,
             contact: contact.map(ContactSolve::finish),
         };
         if let Some(&first) = inverted.first() {
@@ -690,6 +712,32 @@ impl Simulator {
             });
         }
         Ok(stats)
+    }
+}
+
+impl Simulator {
+    /// `H₀` at `x` (with the per-element `steps` there): `L⁻¹` plus, by a low-rank update, the
+    /// curvature of the contact barrier and of the volume barrier; and how many elements are
+    /// near folding.
+    fn step_inverse(
+        &self,
+        x: &[f64],
+        steps: &[LocalStep],
+        contact: Option<&mut ContactSolve>,
+    ) -> Result<(StepInverse, usize), SimError> {
+        let start = Instant::now();
+        let barrier = self.volume_barrier_curvature(x, steps);
+        let near = barrier.columns.len();
+        let (curvature, mode) = match &contact {
+            Some(c) => (c.curvature().clone().plus(barrier), c.step_mode()),
+            None => (barrier, ContactStep::LowRankUpdate),
+        };
+        let inverse = StepInverse::new(&self.global, &self.inverse_columns, curvature, mode)
+            .map_err(SimError::Setup)?;
+        if let Some(c) = contact {
+            c.stats.linear_time += start.elapsed();
+        }
+        Ok((inverse, near))
     }
 }
 
@@ -707,6 +755,7 @@ fn merge_stages(last: &mut SolveStats, earlier: Option<SolveStats>, stages: usiz
     last.local_time += e.local_time;
     last.global_time += e.global_time;
     last.iteration_time += e.iteration_time;
+    last.near_folding = last.near_folding.max(e.near_folding);
     let mut history = e.energy_history;
     history.extend_from_slice(&last.energy_history);
     last.energy_history = history;
