@@ -101,6 +101,15 @@ impl LossWorkspace {
             tapes: [Tape::new(), Tape::new(), Tape::new()],
         })
     }
+
+    /// The three tapes (encoders and N_B here; the displacement baseline uses two).
+    pub(crate) fn tapes_mut(&mut self) -> &mut [Tape<f64>; 3] {
+        &mut self.tapes
+    }
+
+    pub(crate) fn chunked_mut(&mut self) -> &mut ChunkedGradient<f64> {
+        &mut self.chunked
+    }
 }
 
 /// The loss of `batch` (module docs); **adds** each network's parameter gradient into
