@@ -85,6 +85,9 @@ pub struct EvalArgs {
     /// A trained displacement baseline (displacement.nn) to evaluate on the same poses.
     #[arg(long)]
     displacement: Option<PathBuf>,
+    /// Solve the physics models with lip and teeth contact (tens of times slower).
+    #[arg(long)]
+    contact: bool,
     /// Where to write eval.csv, eval.json and eval.md.
     #[arg(long)]
     out: PathBuf,
@@ -470,17 +473,19 @@ pub fn eval(a: &EvalArgs) -> Result<()> {
         .collect();
     let codes = held_out_codes(a.held_out, a.seed);
     let bar = crate::spinner();
-    let report =
-        facesim::generative::evaluate(&rig, &faces, &codes, &|m| bar.set_message(m.to_string()))?;
+    let report = facesim::generative::evaluate(&rig, &faces, &codes, a.contact, &|m| {
+        bar.set_message(m.to_string())
+    })?;
     bar.finish_and_clear();
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     write_atomic(&a.out.join("eval.csv"), report.csv().as_bytes())?;
-    write_atomic(&a.out.join("eval.md"), report.table().as_bytes())?;
+    let md = format!("{}\n{}", report.table(), report.target_table());
+    write_atomic(&a.out.join("eval.md"), md.as_bytes())?;
     write_atomic(
         &a.out.join("eval.json"),
         serde_json::to_string_pretty(&report)?.as_bytes(),
     )?;
-    print!("{}", report.table());
+    print!("{md}");
     for p in report.poses.iter().filter(|p| p.error.is_some()) {
         eprintln!(
             "{} / {} / code {}: {}",

@@ -21,7 +21,7 @@ use serde::{Deserialize, Serialize};
 
 use super::GenerativeError;
 use super::displacement::DisplacementFace;
-use super::metrics::{VolumeChange, lip_crossings};
+use super::metrics::{VolumeChange, lip_crossings, target_crossings};
 use crate::contact::face::{FaceContact, FaceContactSettings};
 use crate::drive::{ActuationModel, Codes};
 use crate::mapping::warp::quantile;
@@ -71,12 +71,26 @@ pub struct EvalPose {
     pub crossings: Option<usize>,
 }
 
+/// The rig's own targets for the held-out codes: how many of them already have crossing
+/// lips (the rig blends shapes linearly and knows nothing of contact), the reference for the
+/// models' crossing counts.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TargetCrossings {
+    pub face: String,
+    pub poses: usize,
+    pub crossing_poses: usize,
+    pub crossings: usize,
+}
+
 /// The whole evaluation.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct EvalReport {
     pub codes: Vec<ExpressionCode>,
+    /// Whether the physics models were solved with lip and teeth contact.
+    pub contact: bool,
     pub rows: Vec<EvalRow>,
     pub poses: Vec<EvalPose>,
+    pub targets: Vec<TargetCrossings>,
 }
 
 /// How a model poses a face.
@@ -127,6 +141,19 @@ impl EvalReport {
         s
     }
 
+    /// The rig targets' crossings as Markdown.
+    pub fn target_table(&self) -> String {
+        let mut s =
+            String::from("| face | rig targets with lip crossings (crossings) |\n|---|---:|\n");
+        for t in &self.targets {
+            s.push_str(&format!(
+                "| {} | {}/{} ({}) |\n",
+                t.face, t.crossing_poses, t.poses, t.crossings
+            ));
+        }
+        s
+    }
+
     /// The rows as CSV.
     pub fn csv(&self) -> String {
         let mut s = String::from(
@@ -159,12 +186,13 @@ impl EvalReport {
 fn pose(
     model: EvalModel<'_>,
     sim: &Simulator,
+    contact: bool,
     codes: &Codes,
 ) -> Result<(Vec<f64>, BonePose, usize), String> {
     match model {
         EvalModel::Physics(m) => {
             let mut settings = Quality::Final.settings();
-            settings.contact = false;
+            settings.contact = contact;
             let a = m.actuate(codes).map_err(|e| e.to_string())?;
             let mut state = sim.rest_state();
             let stats = sim
@@ -179,21 +207,27 @@ fn pose(
     }
 }
 
-/// Evaluates every face's models on `codes` (module docs).
+/// Evaluates every face's models on `codes` (module docs); with `contact_on`, the physics
+/// models are solved with lip and teeth contact (IPC), which costs tens of times more.
 pub fn evaluate(
     rig: &FaceRig,
     faces: &[EvalFace<'_>],
     codes: &[ExpressionCode],
+    contact_on: bool,
     progress: &dyn Fn(&str),
 ) -> Result<EvalReport, GenerativeError> {
     let mut rows = Vec::new();
     let mut poses = Vec::new();
+    let mut target_rows = Vec::new();
     for f in faces {
         let face = f.face;
-        let sim = face.simulator()?;
+        let mut sim = face.simulator()?;
         let contact = FaceContact::new(face, &FaceContactSettings::default()).map_err(|e| {
             GenerativeError::Config(format!("contact surfaces of {}: {e}", face.name))
         })?;
+        if contact_on {
+            sim.set_contact(contact.clone())?;
+        }
         let embedded: Vec<usize> = face
             .render
             .bindings
@@ -219,6 +253,18 @@ pub fn evaluate(
                 })
             })
             .collect::<Result<Vec<_>, _>>()?;
+        let mut target_row = TargetCrossings {
+            face: face.name.clone(),
+            poses: targets.len(),
+            crossing_poses: 0,
+            crossings: 0,
+        };
+        for t in &targets {
+            let n = target_crossings(&contact, &t.render);
+            target_row.crossing_poses += usize::from(n > 0);
+            target_row.crossings += n;
+        }
+        target_rows.push(target_row);
         for &(name, model) in &f.models {
             progress(&format!("{} with {name}", face.name));
             let mut errors = Vec::new();
@@ -241,7 +287,7 @@ pub fn evaluate(
                     volume: None,
                     crossings: None,
                 };
-                match pose(model, &sim, &codes) {
+                match pose(model, &sim, contact_on, &codes) {
                     Ok((x, bones, iterations)) => {
                         let render = face.render_positions(&x, &bones);
                         let e: Vec<f64> = embedded
@@ -293,7 +339,9 @@ pub fn evaluate(
     }
     Ok(EvalReport {
         codes: codes.to_vec(),
+        contact: contact_on,
         rows,
         poses,
+        targets: target_rows,
     })
 }

@@ -63,3 +63,17 @@ pub fn lip_crossings(contact: &FaceContact, x: &[f64], bones: &BonePose) -> usiz
     contact.positions(x, bones, &mut y);
     contact.new_crossings(&y).len()
 }
+
+/// New crossings of the contact surfaces placed at render-surface positions `render` (e.g.
+/// the rig's target for a code: every contact vertex is a render vertex).
+pub fn target_crossings(contact: &FaceContact, render: &[nalgebra::Point3<f64>]) -> usize {
+    let y: Vec<f64> = contact
+        .render_vertices()
+        .iter()
+        .flat_map(|&v| {
+            let p = render[v as usize];
+            [p.x, p.y, p.z]
+        })
+        .collect();
+    contact.new_crossings(&y).len()
+}

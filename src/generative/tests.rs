@@ -375,10 +375,13 @@ fn held_out_codes_and_eval_run() {
             ],
         }],
         &codes,
+        false,
         &|_| {},
     )
     .unwrap();
     assert_eq!(report.rows.len(), 3);
+    assert_eq!(report.targets.len(), 1);
+    assert_eq!(report.targets[0].poses, 2);
     assert_eq!(report.poses.len(), 6);
     let basis = &report.rows[1];
     assert_eq!(basis.failed, 0, "{report:?}");
