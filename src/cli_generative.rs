@@ -479,7 +479,12 @@ pub fn eval(a: &EvalArgs) -> Result<()> {
     bar.finish_and_clear();
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     write_atomic(&a.out.join("eval.csv"), report.csv().as_bytes())?;
-    let md = format!("{}\n{}", report.table(), report.target_table());
+    let md = format!(
+        "All posed codes:\n\n{}\nOnly the codes every model of the face posed:\n\n{}\n{}",
+        report.table(),
+        report.common_table(),
+        report.target_table()
+    );
     write_atomic(&a.out.join("eval.md"), md.as_bytes())?;
     write_atomic(
         &a.out.join("eval.json"),

@@ -15,7 +15,8 @@
 //!
 //! Codes that fail (a physics solve that folds elements, a non-finite output) are counted, not
 //! hidden; their metrics are left out of the pooled ones, so rows of models that failed on
-//! different codes pool different codes (the per-code records say which).
+//! different codes pool different codes. The common rows pool only the codes every model of
+//! the face posed (like for like); the per-code records say which failed.
 
 use serde::{Deserialize, Serialize};
 
@@ -88,7 +89,11 @@ pub struct EvalReport {
     pub codes: Vec<ExpressionCode>,
     /// Whether the physics models were solved with lip and teeth contact.
     pub contact: bool,
+    /// Per face and model, over every code it posed.
     pub rows: Vec<EvalRow>,
+    /// The same over only the codes every model of the face posed (the like-for-like
+    /// comparison when some model failed on some code).
+    pub common_rows: Vec<EvalRow>,
     pub poses: Vec<EvalPose>,
     pub targets: Vec<TargetCrossings>,
 }
@@ -114,13 +119,22 @@ fn opt(v: Option<f64>, digits: usize) -> String {
 }
 
 impl EvalReport {
-    /// The table as Markdown.
+    /// The table as Markdown (over every posed code).
     pub fn table(&self) -> String {
+        Self::markdown(&self.rows)
+    }
+
+    /// The table over the codes every model of a face posed.
+    pub fn common_table(&self) -> String {
+        Self::markdown(&self.common_rows)
+    }
+
+    fn markdown(rows: &[EvalRow]) -> String {
         let mut s = String::from(
             "| face | model | poses solved | vertex error mean (mm) | p95 (mm) | max (mm) | mean \\|det F − 1\\| | volume change mean / max (%) | inverted elements | poses with lip crossings (crossings) |\n|---|---|---:|---:|---:|---:|---:|---:|---:|---:|\n",
         );
         let pct = |v: Option<f64>| opt(v.map(|v| 100.0 * v), 2);
-        for r in &self.rows {
+        for r in rows {
             s.push_str(&format!(
                 "| {} | {} | {}/{} | {} | {} | {} | {} | {} / {} | {} | {} ({}) |\n",
                 r.face,
@@ -219,6 +233,7 @@ pub fn evaluate(
     let mut rows = Vec::new();
     let mut poses = Vec::new();
     let mut target_rows = Vec::new();
+    let mut common_rows = Vec::new();
     for f in faces {
         let face = f.face;
         let mut sim = face.simulator()?;
@@ -265,12 +280,11 @@ pub fn evaluate(
             target_row.crossings += n;
         }
         target_rows.push(target_row);
+        // Per model, per code: the vertex errors, volume and crossings of a posed code.
+        let mut results: Vec<Vec<Option<Posed>>> = Vec::new();
         for &(name, model) in &f.models {
             progress(&format!("{} with {name}", face.name));
-            let mut errors = Vec::new();
-            let (mut failed, mut det_sum, mut elements) = (0, 0.0, 0usize);
-            let mut volume_changes = Vec::new();
-            let (mut inverted, mut crossing_poses, mut crossings) = (0, 0, 0);
+            let mut per_code = Vec::new();
             for (c, (&expression, target)) in codes.iter().zip(&targets).enumerate() {
                 let codes = Codes {
                     expression,
@@ -290,58 +304,112 @@ pub fn evaluate(
                 match pose(model, &sim, contact_on, &codes) {
                     Ok((x, bones, iterations)) => {
                         let render = face.render_positions(&x, &bones);
-                        let e: Vec<f64> = embedded
+                        let errors: Vec<f64> = embedded
                             .iter()
                             .map(|&v| MM * (render[v] - target.render[v]).norm())
                             .collect();
-                        record.mean_mm = Some(e.iter().sum::<f64>() / e.len().max(1) as f64);
-                        record.max_mm = Some(e.iter().copied().fold(0.0, f64::max));
-                        record.iterations = iterations;
-                        errors.extend(e);
                         let volume = VolumeChange::of(&face.mesh, &x);
-                        det_sum += volume.mean_abs_det_change * face.mesh.tets.len() as f64;
-                        elements += face.mesh.tets.len();
-                        volume_changes.push(volume.total_change.abs());
-                        inverted += volume.inverted;
-                        let n = lip_crossings(&contact, &x, &bones);
-                        crossing_poses += usize::from(n > 0);
-                        crossings += n;
+                        let crossings = lip_crossings(&contact, &x, &bones);
+                        record.mean_mm =
+                            Some(errors.iter().sum::<f64>() / errors.len().max(1) as f64);
+                        record.max_mm = Some(errors.iter().copied().fold(0.0, f64::max));
+                        record.iterations = iterations;
                         record.volume = Some(volume);
-                        record.crossings = Some(n);
+                        record.crossings = Some(crossings);
+                        per_code.push(Some(Posed {
+                            errors,
+                            volume,
+                            crossings,
+                        }));
                     }
                     Err(msg) => {
-                        failed += 1;
                         record.error = Some(msg);
+                        per_code.push(None);
                     }
                 }
                 poses.push(record);
             }
-            let solved = !errors.is_empty();
-            let some = |v: f64| solved.then_some(v);
-            rows.push(EvalRow {
-                face: face.name.clone(),
-                model: name.to_string(),
-                poses: codes.len(),
-                failed,
-                mean_mm: some(errors.iter().sum::<f64>() / errors.len().max(1) as f64),
-                p95_mm: some(quantile(&errors, 0.95)),
-                max_mm: some(errors.iter().copied().fold(0.0, f64::max)),
-                mean_abs_det_change: some(det_sum / elements.max(1) as f64),
-                mean_abs_volume_change: some(
-                    volume_changes.iter().sum::<f64>() / volume_changes.len().max(1) as f64,
-                ),
-                max_abs_volume_change: some(volume_changes.iter().copied().fold(0.0, f64::max)),
-                inverted,
-                crossing_poses,
-                crossings,
-            });
+            results.push(per_code);
+        }
+        let common: Vec<bool> = (0..codes.len())
+            .map(|c| results.iter().all(|r| r[c].is_some()))
+            .collect();
+        for (&(name, _), per_code) in f.models.iter().zip(&results) {
+            let all = vec![true; codes.len()];
+            rows.push(pooled_row(
+                &face.name,
+                name,
+                face.mesh.tets.len(),
+                per_code,
+                &all,
+            ));
+            common_rows.push(pooled_row(
+                &face.name,
+                name,
+                face.mesh.tets.len(),
+                per_code,
+                &common,
+            ));
         }
     }
     Ok(EvalReport {
         codes: codes.to_vec(),
         contact: contact_on,
         rows,
+        common_rows,
         poses,
         targets: target_rows,
     })
+}
+
+/// What one posed code gave.
+struct Posed {
+    errors: Vec<f64>,
+    volume: VolumeChange,
+    crossings: usize,
+}
+
+/// One model's row pooled over the codes `keep` selects (`poses` counts those, `failed`
+/// those of them that did not pose).
+fn pooled_row(
+    face: &str,
+    model: &str,
+    elements: usize,
+    per_code: &[Option<Posed>],
+    keep: &[bool],
+) -> EvalRow {
+    let kept: Vec<&Option<Posed>> = per_code
+        .iter()
+        .zip(keep)
+        .filter(|(_, k)| **k)
+        .map(|(p, _)| p)
+        .collect();
+    let posed: Vec<&Posed> = kept.iter().filter_map(|p| p.as_ref()).collect();
+    let errors: Vec<f64> = posed
+        .iter()
+        .flat_map(|p| p.errors.iter().copied())
+        .collect();
+    let changes: Vec<f64> = posed.iter().map(|p| p.volume.total_change.abs()).collect();
+    let some = |v: f64| (!posed.is_empty()).then_some(v);
+    EvalRow {
+        face: face.to_string(),
+        model: model.to_string(),
+        poses: kept.len(),
+        failed: kept.len() - posed.len(),
+        mean_mm: some(errors.iter().sum::<f64>() / errors.len().max(1) as f64),
+        p95_mm: some(quantile(&errors, 0.95)),
+        max_mm: some(errors.iter().copied().fold(0.0, f64::max)),
+        mean_abs_det_change: some(
+            posed
+                .iter()
+                .map(|p| p.volume.mean_abs_det_change * elements as f64)
+                .sum::<f64>()
+                / (elements * posed.len()).max(1) as f64,
+        ),
+        mean_abs_volume_change: some(changes.iter().sum::<f64>() / changes.len().max(1) as f64),
+        max_abs_volume_change: some(changes.iter().copied().fold(0.0, f64::max)),
+        inverted: posed.iter().map(|p| p.volume.inverted).sum(),
+        crossing_poses: posed.iter().filter(|p| p.crossings > 0).count(),
+        crossings: posed.iter().map(|p| p.crossings).sum(),
+    }
 }

@@ -381,6 +381,23 @@ fn held_out_codes_and_eval_run() {
     .unwrap();
     assert_eq!(report.rows.len(), 3);
     assert_eq!(report.targets.len(), 1);
+    assert_eq!(report.common_rows.len(), 3);
+    // Common rows pool exactly the codes all three models posed.
+    let common = (0..2)
+        .filter(|&c| {
+            report
+                .poses
+                .iter()
+                .filter(|p| p.code == c)
+                .all(|p| p.error.is_none())
+        })
+        .count();
+    assert!(
+        report
+            .common_rows
+            .iter()
+            .all(|r| r.poses == common && r.failed == 0)
+    );
     assert_eq!(report.targets[0].poses, 2);
     assert_eq!(report.poses.len(), 6);
     let basis = &report.rows[1];

@@ -16,6 +16,8 @@ use crate::generative::train::{Stage1Config, batch_picks};
 #[derive(Clone, Debug)]
 pub struct DisplacementPose {
     pub codes: Codes,
+    /// The fitted jaw `[θ; t]`.
+    pub jaw: [f64; 6],
     pub displacements: Vec<[f32; 3]>,
 }
 
@@ -43,6 +45,8 @@ pub struct DisplacementBatch {
     pub x: Mat<f64>,
     pub counts: Vec<usize>,
     pub targets: Vec<[f64; 3]>,
+    /// Fitted jaw per pose.
+    pub jaw: Vec<[f64; 6]>,
 }
 
 impl DisplacementData {
@@ -68,6 +72,7 @@ impl DisplacementData {
                 .iter()
                 .map(|p| DisplacementPose {
                     codes: p.codes,
+                    jaw: p.jaw,
                     displacements: p
                         .displacements
                         .iter()
@@ -103,12 +108,13 @@ impl DisplacementData {
     /// The batch of iteration `it`: `config.batch_poses` poses × `config.elements_per_pose`
     /// vertices each.
     pub fn batch(&self, config: &Stage1Config, it: u64) -> DisplacementBatch {
-        let (mut codes, mut counts, mut targets, mut rows) =
-            (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        let (mut codes, mut counts, mut targets, mut rows, mut jaw) =
+            (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
         for (f, p, vertices) in batch_picks(config, it, &self.index, |f| self.faces[f].warp.len()) {
             let face = &self.faces[f];
             let pose = &face.poses[p];
             codes.push(pose.codes);
+            jaw.push(pose.jaw);
             counts.push(vertices.len());
             for v in vertices {
                 targets.push(pose.displacements[v].map(f64::from));
@@ -120,6 +126,7 @@ impl DisplacementData {
             x: Mat::from_fn(rows.len(), 3, |i, k| rows[i][k]),
             counts,
             targets,
+            jaw,
         }
     }
 }

@@ -3,8 +3,10 @@
 //!
 //! `codes → encoders → z → tanh → N_D(X̂, tanh z) = d` (cm, canonical frame), then per identity
 //! `x = X + R_φᵀ d(φ(X))` for every simulation vertex X. N_D is N_A with 3 outputs (SIREN first
-//! layer on the canonical position, Lipschitz GeLU layers modulated by tanh z); its encoders
-//! are its own (same shapes as the physics model's).
+//! layer on the canonical position, Lipschitz GeLU layers modulated by tanh z); everything
+//! else is the physics model's architecture, trained anew: its own encoders and its own N_B
+//! for the jaw (the supplemental: "simply adjusting the dimension of the final layer to
+//! three").
 //!
 //! **What it predicts, and why that is the fair comparison.** Its labels are the
 //! displacements of every simulation vertex in the *same fitted states* whose element
@@ -17,8 +19,11 @@
 //! and material space by R_φ like the actuation warp (`d_canonical = R_φ d_material`); φ's
 //! stretch is not applied (identities differ from the template by a few per cent in size).
 //!
-//! The jaw: the baseline has no N_B; the teeth ride on the rigid motion fitted to its own
-//! predicted jaw-attached vertices ([`face::DisplacementFace::pose`]).
+//! The jaw: N_B, trained with the same jaw term as the physics model's, places the rigid teeth
+//! (the tissue, including the part attached to the jaw, comes from N_D alone). A rigid fit to
+//! N_D's jaw-attached vertices was tried first and is ill-conditioned: on the 13–18 clustered
+//! vertices a rotation about the pivot trades against a translation, and the teeth landed
+//! several millimetres off.
 //!
 //! - [`data`]: per face, φ and R_φ at the vertices and the canonical displacement labels.
 //! - [`face`]: the networks bound to one face: positions and jaw for a code.
@@ -34,7 +39,7 @@ use std::sync::Mutex;
 use faer::{Mat, Par};
 
 use super::GenerativeError;
-use super::loss::{LossParts, LossWorkspace};
+use super::loss::{LossParts, LossWeights, LossWorkspace, jaw_term};
 use super::nets::{Architecture, CanonicalFrame, GenerativeNets, from_hex, to_hex};
 use super::train::{Stage1Config, TrainableNets};
 use crate::drive::Codes;
@@ -47,7 +52,7 @@ pub use face::DisplacementFace;
 pub const SAMPLE_DISPLACEMENT: &str = "displacement.nn";
 
 /// Names of the networks in a [`Checkpoint`].
-pub const DISPLACEMENT_NET_NAMES: [&str; 3] = ["expression", "style", "displacement"];
+pub const DISPLACEMENT_NET_NAMES: [&str; 4] = ["expression", "style", "displacement", "jaw"];
 const KIND_KEY: &str = "kind";
 const KIND: &str = "facesim-displacement";
 const VERSION_KEY: &str = "displacement_version";
@@ -62,11 +67,13 @@ pub struct DisplacementNets {
     pub expression: Mlp<f64>,
     pub style: Mlp<f64>,
     pub displacement: Mlp<f64>,
+    /// N_B (as in [`GenerativeNets`]).
+    pub jaw: Mlp<f64>,
 }
 
 impl DisplacementNets {
-    /// Fresh networks from `seed`; the encoders start like the physics model's for the same
-    /// seed (same streams), N_D from N_A's stream.
+    /// Fresh networks from `seed`; the encoders and N_B start like the physics model's for
+    /// the same seed (same streams), N_D from N_A's stream.
     pub fn new(
         architecture: Architecture,
         frame: CanonicalFrame,
@@ -79,21 +86,30 @@ impl DisplacementNets {
             displacement: Mlp::new(architecture.displacement_spec(), s)?,
             expression: g.expression,
             style: g.style,
+            jaw: g.jaw,
             architecture,
             frame,
         })
     }
 
-    pub fn nets(&self) -> [&Mlp<f64>; 3] {
-        [&self.expression, &self.style, &self.displacement]
+    pub fn nets(&self) -> [&Mlp<f64>; 4] {
+        [&self.expression, &self.style, &self.displacement, &self.jaw]
     }
 
-    pub fn nets_mut(&mut self) -> [&mut Mlp<f64>; 3] {
+    pub fn nets_mut(&mut self) -> [&mut Mlp<f64>; 4] {
         [
             &mut self.expression,
             &mut self.style,
             &mut self.displacement,
+            &mut self.jaw,
         ]
+    }
+
+    /// The jaw `[θ; t]` for a modulation row.
+    pub fn jaw_params(&self, u: &[f64]) -> Result<[f64; 6], GenerativeError> {
+        let m = Mat::from_fn(1, u.len(), |_, k| u[k]);
+        let y = self.jaw.eval(m.as_ref(), None)?;
+        Ok([0, 1, 2, 3, 4, 5].map(|k| y[(0, k)]))
     }
 
     /// The modulation tanh(z) of each code (B × code_dim).
@@ -155,6 +171,7 @@ impl DisplacementNets {
             expression: ck.network("expression")?,
             style: ck.network("style")?,
             displacement: ck.network("displacement")?,
+            jaw: ck.network("jaw")?,
             architecture,
             frame,
         };
@@ -162,6 +179,7 @@ impl DisplacementNets {
             architecture.expression_spec(),
             architecture.style_spec(),
             architecture.displacement_spec(),
+            architecture.jaw_spec(),
         ];
         for ((name, net), spec) in DISPLACEMENT_NET_NAMES.iter().zip(nets.nets()).zip(specs) {
             if *net.spec() != spec {
@@ -184,13 +202,14 @@ impl DisplacementNets {
     /// The loss of one batch (module [`data`] makes them) and its gradient, **added** into
     /// `grads` (in [`DISPLACEMENT_NET_NAMES`] order):
     ///
-    ///   L = (1/R) Σ_rows ‖N_D(X̂; u_b) − d*‖² + λ_lip Π softplus(cᵢ)
+    ///   L = (1/R) Σ_rows ‖N_D(X̂; u_b) − d*‖² + L_jaw + λ_lip Π softplus(cᵢ)
     ///
-    /// (cm²; `fit` in [`LossParts`], `jaw` and `act` are 0: the baseline has neither).
+    /// (cm²; `fit` in [`LossParts`]; `L_jaw` the physics model's jaw term; `act` is 0: there is
+    /// no actuation).
     pub fn batch_loss(
         &self,
         batch: &data::DisplacementBatch,
-        lambda_lip: f64,
+        w: &LossWeights,
         ws: &mut LossWorkspace,
         grads: &mut [Vec<f64>],
         par: Par,
@@ -202,7 +221,8 @@ impl DisplacementNets {
             || batch.counts.len() != b_count
             || batch.x.nrows() != rows
             || batch.targets.len() != rows
-            || grads.len() != 3
+            || batch.jaw.len() != b_count
+            || grads.len() != 4
         {
             return Err(GenerativeError::Config(format!(
                 "inconsistent displacement batch: {b_count} poses, {} counts, {} rows, {} targets, {} gradients",
@@ -216,6 +236,7 @@ impl DisplacementNets {
             self.architecture.expression_dim,
             self.architecture.code_dim(),
         );
+        let lambda_lip = w.lambda_lip;
         let [tape_e, tape_s, _] = ws.tapes_mut();
         let (xe, xs) = GenerativeNets::inputs(&batch.codes);
         self.expression
@@ -237,8 +258,8 @@ impl DisplacementNets {
 
         let inv_r = 1.0 / rows as f64;
         let parts: Mutex<Vec<(usize, f64)>> = Mutex::new(Vec::new());
-        let [grad_e, grad_s, grad_d] = grads else {
-            unreachable!("three gradients checked above")
+        let [grad_e, grad_s, grad_d, grad_b] = grads else {
+            unreachable!("four gradients checked above")
         };
         self.displacement.gradient_chunked(
             batch.x.as_ref(),
@@ -267,8 +288,17 @@ impl DisplacementNets {
         let mut parts = parts.into_inner().expect("no panics while held");
         parts.sort_by_key(|p| p.0);
         let fit: f64 = parts.iter().map(|p| p.1).sum();
-        let du = ws.chunked_mut().code_grad().to_vec();
-        let [tape_e, tape_s, _] = ws.tapes_mut();
+        let mut du = ws.chunked_mut().code_grad().to_vec();
+        let [tape_e, tape_s, tape_b] = ws.tapes_mut();
+        let jaw = jaw_term(
+            &self.jaw,
+            &u,
+            &batch.jaw,
+            w.jaw_lever_cm,
+            tape_b,
+            grad_b,
+            &mut du,
+        )?;
         let dz = |b: usize, k: usize| du[b * cd + k] * (1.0 - u[(b, k)] * u[(b, k)]);
         let dye = Mat::from_fn(b_count, de, &dz);
         let dys = Mat::from_fn(b_count, cd - de, |b, k| dz(b, de + k));
@@ -282,10 +312,10 @@ impl DisplacementNets {
         let lip = self.displacement.lipschitz_loss(1.0, None)?;
         Ok(LossParts {
             fit,
-            jaw: 0.0,
+            jaw,
             act: 0.0,
             lip,
-            total: fit + lip_weighted,
+            total: fit + jaw + lip_weighted,
         })
     }
 }
@@ -330,13 +360,6 @@ impl TrainableNets for DisplacementNets {
         grads: &mut [Vec<f64>],
     ) -> Result<LossParts, GenerativeError> {
         let batch = data.batch(config, it);
-        DisplacementNets::batch_loss(
-            self,
-            &batch,
-            config.weights.lambda_lip,
-            ws,
-            grads,
-            Par::rayon(0),
-        )
+        DisplacementNets::batch_loss(self, &batch, &config.weights, ws, grads, Par::rayon(0))
     }
 }
