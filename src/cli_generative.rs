@@ -13,6 +13,7 @@ use facesim::generative::displacement::SAMPLE_DISPLACEMENT;
 use facesim::generative::eval::{EvalFace, EvalModel};
 use facesim::generative::face::FaceWarp;
 use facesim::generative::train::LOSS_CSV_HEADER;
+use facesim::generative::transfer::NearestElementTransfer;
 use facesim::generative::{
     CanonicalFrame, DisplacementData, DisplacementFace, DisplacementNets, GenerativeFace,
     GenerativeNets, ModelTrainer, PoseSettings, Stage1Config, Stage1Data, TrainableNets,
@@ -88,6 +89,11 @@ pub struct EvalArgs {
     /// Solve the physics models with lip and teeth contact (tens of times slower).
     #[arg(long)]
     contact: bool,
+    /// Also evaluate style transfer: each identity B driven in the next identity A's style
+    /// (networks, A's actuation basis carried to B by nearest element, B's own basis, and
+    /// the baseline) against the rig's target of B in A's style; writes transfer.md/.json.
+    #[arg(long)]
+    transfer: bool,
     /// Where to write eval.csv, eval.json and eval.md.
     #[arg(long)]
     out: PathBuf,
@@ -491,6 +497,80 @@ pub fn eval(a: &EvalArgs) -> Result<()> {
         serde_json::to_string_pretty(&report)?.as_bytes(),
     )?;
     print!("{md}");
+    if a.transfer {
+        let ids: Vec<usize> = (0..sample.faces.len())
+            .filter(|&i| sample.faces[i].identity.is_some())
+            .collect();
+        anyhow::ensure!(
+            ids.len() >= 2,
+            "style transfer needs two identities in the sample"
+        );
+        let transfers: Vec<NearestElementTransfer> = ids
+            .iter()
+            .enumerate()
+            .map(|(k, &b)| {
+                let src = ids[(k + 1) % ids.len()];
+                NearestElementTransfer::new(
+                    sample.faces[src].actuation.clone(),
+                    &sample.faces[src].model,
+                    &sample.faces[b].model,
+                )
+                .with_context(|| {
+                    format!(
+                        "carrying {} to {}",
+                        sample.faces[src].name, sample.faces[b].name
+                    )
+                })
+            })
+            .collect::<Result<_>>()?;
+        let names: Vec<String> = ids
+            .iter()
+            .enumerate()
+            .map(|(k, _)| format!("{} basis on B", sample.faces[ids[(k + 1) % ids.len()]].name))
+            .collect();
+        let faces: Vec<EvalFace<'_>> = ids
+            .iter()
+            .enumerate()
+            .map(|(k, &b)| {
+                let f = &sample.faces[b];
+                let mut models = vec![
+                    (
+                        "networks",
+                        EvalModel::Physics(&generative[b] as &dyn ActuationModel),
+                    ),
+                    (
+                        names[k].as_str(),
+                        EvalModel::Physics(&transfers[k] as &dyn ActuationModel),
+                    ),
+                    ("B's own basis", EvalModel::Physics(f.actuation.as_ref())),
+                ];
+                if let Some(d) = &displacement {
+                    models.push(("displacement", EvalModel::Displacement(&d[b])));
+                }
+                EvalFace {
+                    face: &f.model,
+                    style: sample.faces[ids[(k + 1) % ids.len()]].style,
+                    models,
+                }
+            })
+            .collect();
+        let bar = crate::spinner();
+        let t = facesim::generative::evaluate(&rig, &faces, &codes, a.contact, &|m| {
+            bar.set_message(format!("transfer: {m}"))
+        })?;
+        bar.finish_and_clear();
+        let md = format!(
+            "Style transfer (face B in the next identity's style A):\n\n{}\nOnly the codes every model posed:\n\n{}",
+            t.table(),
+            t.common_table()
+        );
+        write_atomic(&a.out.join("transfer.md"), md.as_bytes())?;
+        write_atomic(
+            &a.out.join("transfer.json"),
+            serde_json::to_string_pretty(&t)?.as_bytes(),
+        )?;
+        print!("\n{md}");
+    }
     for p in report.poses.iter().filter(|p| p.error.is_some()) {
         eprintln!(
             "{} / {} / code {}: {}",

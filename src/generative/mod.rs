@@ -13,6 +13,7 @@
 //! - [`train`]: the stage-1 training loop (Adam, linear decay, checkpoints, resume).
 //! - [`displacement`]: the paper's baseline, a displacement network of N_A's shape trained
 //!   on the same poses (no physics).
+//! - [`transfer`]: style transfer without canonical space (A's actuations on B's elements).
 //! - [`eval`]: held-out codes simulated with the networks and with the actuation basis, and
 //!   the baseline's displacements, on the same poses.
 
@@ -25,6 +26,7 @@ pub mod loss;
 pub mod metrics;
 pub mod nets;
 pub mod train;
+pub mod transfer;
 
 #[cfg(test)]
 pub(crate) mod tests;

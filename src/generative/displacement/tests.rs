@@ -352,3 +352,38 @@ fn bundled_displacement_baseline_poses_every_sample_face() {
         );
     }
 }
+
+/// Style transfer without canonical space: carried onto its own face, A's basis maps every
+/// element to itself and gives A's tensors; onto another identity it drives that face's
+/// element count with tensors taken from A; a model of another face is refused.
+#[test]
+fn nearest_element_transfer_copies_the_source_actuations() {
+    use crate::drive::ActuationModel;
+    use crate::generative::transfer::NearestElementTransfer;
+    let s = sample();
+    let (a, b) = (&s.faces[1], &s.faces[2]);
+    let codes = Codes {
+        expression: crate::rig::ExpressionCode::single("mouthSmile_L", 1.0).unwrap(),
+        style: b.style,
+    };
+    let same = NearestElementTransfer::new(a.actuation.clone(), &a.model, &a.model).unwrap();
+    assert!(
+        same.source_elements()
+            .iter()
+            .enumerate()
+            .all(|(i, &e)| i == e)
+    );
+    assert_eq!(
+        same.actuate(&codes).unwrap().tensors,
+        a.actuation.actuate(&codes).unwrap().tensors
+    );
+    let t = NearestElementTransfer::new(a.actuation.clone(), &a.model, &b.model).unwrap();
+    assert_eq!(t.element_count(), b.model.mesh.element_count());
+    let source = a.actuation.actuate(&codes).unwrap();
+    let carried = t.actuate(&codes).unwrap();
+    assert_eq!(carried.jaw, source.jaw);
+    for (i, &e) in t.source_elements().iter().enumerate() {
+        assert_eq!(carried.tensors[i], source.tensors[e]);
+    }
+    assert!(NearestElementTransfer::new(a.actuation.clone(), &b.model, &a.model).is_err());
+}
