@@ -103,6 +103,7 @@ fn bits(nets: &DisplacementNets) -> Vec<u64> {
 /// The baseline's loss gradient through N_D (fit, Lipschitz), N_B (jaw), tanh and both
 /// encoders agrees with central differences for parameters of every network.
 #[test]
+#[allow(clippy::needless_range_loop)] // n indexes the networks and their gradients alike
 fn displacement_loss_gradient_matches_central_differences() {
     let batch = data().batch(&config(1, 5), 0);
     assert_eq!(batch.counts, vec![64, 64, 64]);
