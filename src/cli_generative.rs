@@ -9,29 +9,45 @@ use std::time::Instant;
 use anyhow::{Context, Result};
 use facesim::drive::ActuationModel;
 use facesim::generative::data::FacePoses;
-use facesim::generative::eval::EvalFace;
+use facesim::generative::displacement::SAMPLE_DISPLACEMENT;
+use facesim::generative::eval::{EvalFace, EvalModel};
 use facesim::generative::face::FaceWarp;
-use facesim::generative::train::{LOSS_CSV_HEADER, Trainer};
+use facesim::generative::train::LOSS_CSV_HEADER;
+use facesim::generative::transfer::NearestElementTransfer;
 use facesim::generative::{
-    CanonicalFrame, GenerativeFace, GenerativeNets, PoseSettings, Stage1Config, Stage1Data,
+    CanonicalFrame, DisplacementData, DisplacementFace, DisplacementNets, GenerativeFace,
+    GenerativeNets, ModelTrainer, PoseSettings, Stage1Config, Stage1Data, TrainableNets,
     held_out_codes,
 };
 use facesim::nn::Checkpoint;
 use facesim::rig::FaceRig;
 use facesim::sample::Sample;
 
+/// What `facesim train` trains.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Stage {
+    /// Stage 1: fit the expression/style networks to the stage-1 actuations and jaw motions.
+    #[value(name = "1")]
+    One,
+    /// The displacement baseline: fit N_D to the same poses' vertex displacements.
+    Displacement,
+}
+
 #[derive(clap::Args)]
 pub struct TrainArgs {
-    /// Training stage (only 1 exists yet: fit the stage-1 actuations and jaw motions).
+    /// What to train: `1` (stage 1 of the expression/style networks → generative.nn) or
+    /// `displacement` (the no-physics baseline → displacement.nn).
     #[arg(long)]
-    stage: u32,
+    stage: Stage,
     /// The sample folder (faces, mappings).
     #[arg(long, default_value = facesim::sample::SAMPLE_DIR)]
     sample: PathBuf,
     /// The rig (needed only to make missing stage-1 data).
     #[arg(long, default_value = "../shared/data/ict-facekit")]
     rig: PathBuf,
-    /// Output folder: generative.nn, checkpoint.nn, loss.csv, train.json, poses/.
+    /// Output folder: generative.nn, checkpoint.nn, loss.csv, train.json, poses/ (the
+    /// displacement stage: displacement.nn, displacement-checkpoint.nn, displacement-loss.csv,
+    /// displacement-train.json; the same poses/ cache).
     #[arg(long)]
     out: PathBuf,
     #[arg(long, default_value_t = Stage1Config::default().seed)]
@@ -67,6 +83,17 @@ pub struct EvalArgs {
     /// The trained networks (generative.nn).
     #[arg(long)]
     model: PathBuf,
+    /// A trained displacement baseline (displacement.nn) to evaluate on the same poses.
+    #[arg(long)]
+    displacement: Option<PathBuf>,
+    /// Solve the physics models with lip and teeth contact (tens of times slower).
+    #[arg(long)]
+    contact: bool,
+    /// Also evaluate style transfer: each identity B driven in the next identity A's style
+    /// (networks, A's actuation basis carried to B by nearest element, B's own basis, and
+    /// the baseline) against the rig's target of B in A's style; writes transfer.md/.json.
+    #[arg(long)]
+    transfer: bool,
     /// Where to write eval.csv, eval.json and eval.md.
     #[arg(long)]
     out: PathBuf,
@@ -184,11 +211,6 @@ fn stage1_poses(
 }
 
 pub fn train(a: &TrainArgs) -> Result<()> {
-    anyhow::ensure!(
-        a.stage == 1,
-        "stage {} is not implemented; only stage 1 (fit to the stage-1 actuations) exists",
-        a.stage
-    );
     let sample = sample(&a.sample)?;
     let frame = canonical_frame(&sample)?;
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
@@ -197,13 +219,6 @@ pub fn train(a: &TrainArgs) -> Result<()> {
         ..PoseSettings::default()
     };
     let poses = stage1_poses(&sample, &a.rig, &a.out.join("poses"), &settings)?;
-    let mut faces = Vec::new();
-    for (f, p) in sample.faces.iter().zip(poses) {
-        let warp = FaceWarp::new(&f.model, f.mapping.as_ref(), &frame)
-            .with_context(|| format!("canonical positions of {}", f.name))?;
-        faces.push((warp, p));
-    }
-    let data = Stage1Data::new(faces)?;
     let config = Stage1Config {
         iterations: a.iterations,
         learning_rate: a.lr,
@@ -212,19 +227,96 @@ pub fn train(a: &TrainArgs) -> Result<()> {
         seed: a.seed,
         ..Stage1Config::default()
     };
-    let ck_path = a.out.join("checkpoint.nn");
-    let csv_path = a.out.join("loss.csv");
+    match a.stage {
+        Stage::One => {
+            let mut faces = Vec::new();
+            for (f, p) in sample.faces.iter().zip(poses) {
+                let warp = FaceWarp::new(&f.model, f.mapping.as_ref(), &frame)
+                    .with_context(|| format!("canonical positions of {}", f.name))?;
+                faces.push((warp, p));
+            }
+            let data = Stage1Data::new(faces)?;
+            let files = RunFiles {
+                label: "stage 1",
+                model: "generative.nn",
+                checkpoint: "checkpoint.nn",
+                loss: "loss.csv",
+                summary: "train.json",
+                rows: "elements",
+            };
+            run_training::<GenerativeNets>(
+                a,
+                &data,
+                data.pose_count(),
+                config,
+                frame,
+                &settings,
+                &files,
+            )
+        }
+        Stage::Displacement => {
+            let mut faces = Vec::new();
+            for (f, p) in sample.faces.iter().zip(poses) {
+                let warp = FaceWarp::vertices(&f.model, f.mapping.as_ref(), &frame)
+                    .with_context(|| format!("canonical vertex positions of {}", f.name))?;
+                faces.push((warp, p));
+            }
+            let data = DisplacementData::new(faces)?;
+            let files = RunFiles {
+                label: "displacement baseline",
+                model: SAMPLE_DISPLACEMENT,
+                checkpoint: "displacement-checkpoint.nn",
+                loss: "displacement-loss.csv",
+                summary: "displacement-train.json",
+                rows: "vertices",
+            };
+            run_training::<DisplacementNets>(
+                a,
+                &data,
+                data.pose_count(),
+                config,
+                frame,
+                &settings,
+                &files,
+            )
+        }
+    }
+}
+
+/// The files one training run writes in OUT.
+struct RunFiles {
+    label: &'static str,
+    model: &'static str,
+    checkpoint: &'static str,
+    loss: &'static str,
+    summary: &'static str,
+    /// What a pose's sampled rows are.
+    rows: &'static str,
+}
+
+/// The training loop of any model: resume, loss curve, progress bar, checkpoints, summary.
+fn run_training<M: TrainableNets>(
+    a: &TrainArgs,
+    data: &M::Data,
+    pose_count: usize,
+    config: Stage1Config,
+    frame: CanonicalFrame,
+    settings: &PoseSettings,
+    files: &RunFiles,
+) -> Result<()> {
+    let ck_path = a.out.join(files.checkpoint);
+    let csv_path = a.out.join(files.loss);
     let mut trainer = if a.resume {
         let ck = Checkpoint::load(&ck_path)
             .with_context(|| format!("loading {} to resume", ck_path.display()))?;
-        Trainer::resume(&data, config, &ck).context("resuming")?
+        ModelTrainer::<M>::resume(data, config, &ck).context("resuming")?
     } else {
         anyhow::ensure!(
             !ck_path.exists(),
             "{} exists: pass --resume to continue that run, or remove it",
             ck_path.display()
         );
-        Trainer::new(&data, config, frame)?
+        ModelTrainer::<M>::new(data, config, frame)?
     };
     // The loss curve: keep the rows before the resumed iteration.
     let mut csv = String::from(LOSS_CSV_HEADER);
@@ -250,13 +342,14 @@ pub fn train(a: &TrainArgs) -> Result<()> {
         .with_context(|| format!("opening {}", csv_path.display()))?;
 
     eprintln!(
-        "stage 1: {} poses on {} faces, {} iterations from {}, batch {} × {} elements, seed {}",
-        data.pose_count(),
-        data.faces.len(),
+        "{}: {} poses, {} iterations from {}, batch {} × {} {}, seed {}",
+        files.label,
+        pose_count,
         config.iterations,
         trainer.iteration(),
         config.batch_poses,
         config.elements_per_pose,
+        files.rows,
         config.seed
     );
     let bar = indicatif::ProgressBar::new(config.iterations);
@@ -292,24 +385,25 @@ pub fn train(a: &TrainArgs) -> Result<()> {
     }
     bar.finish_and_clear();
     let seconds = start.elapsed().as_secs_f64();
-    let model_path = a.out.join("generative.nn");
+    let model_path = a.out.join(files.model);
     trainer
         .nets()
+        .to_checkpoint()
         .save(&model_path)
         .with_context(|| format!("writing {}", model_path.display()))?;
     let ms = median(&mut step_ms);
     let summary = serde_json::json!({
-        "stage": 1,
+        "stage": files.label,
         "config": config,
         "pose_settings": settings,
-        "poses": data.pose_count(),
+        "poses": pose_count,
         "iterations_run": step_ms.len(),
         "seconds": seconds,
         "median_ms_per_iteration": ms,
         "last": last,
     });
     write_atomic(
-        &a.out.join("train.json"),
+        &a.out.join(files.summary),
         serde_json::to_string_pretty(&summary)?.as_bytes(),
     )?;
     println!(
@@ -342,32 +436,141 @@ pub fn eval(a: &EvalArgs) -> Result<()> {
                 .with_context(|| format!("binding the networks to {}", f.name))
         })
         .collect::<Result<_>>()?;
+    let displacement: Option<Vec<DisplacementFace>> = match &a.displacement {
+        None => None,
+        Some(path) => {
+            let nets = Arc::new(
+                DisplacementNets::load(path)
+                    .with_context(|| format!("loading {}", path.display()))?,
+            );
+            Some(
+                sample
+                    .faces
+                    .iter()
+                    .map(|f| {
+                        DisplacementFace::new(nets.clone(), &f.model, f.mapping.as_ref())
+                            .with_context(|| format!("binding the baseline to {}", f.name))
+                    })
+                    .collect::<Result<_>>()?,
+            )
+        }
+    };
     let faces: Vec<EvalFace<'_>> = sample
         .faces
         .iter()
-        .zip(&generative)
-        .map(|(f, g)| EvalFace {
-            face: &f.model,
-            style: f.style,
-            models: vec![
-                ("networks", g as &dyn ActuationModel),
-                ("basis", f.actuation.as_ref()),
-            ],
+        .enumerate()
+        .map(|(i, f)| {
+            let mut models = vec![
+                (
+                    "networks",
+                    EvalModel::Physics(&generative[i] as &dyn ActuationModel),
+                ),
+                ("basis", EvalModel::Physics(f.actuation.as_ref())),
+            ];
+            if let Some(d) = &displacement {
+                models.push(("displacement", EvalModel::Displacement(&d[i])));
+            }
+            EvalFace {
+                face: &f.model,
+                style: f.style,
+                models,
+            }
         })
         .collect();
     let codes = held_out_codes(a.held_out, a.seed);
     let bar = crate::spinner();
-    let report =
-        facesim::generative::evaluate(&rig, &faces, &codes, &|m| bar.set_message(m.to_string()))?;
+    let report = facesim::generative::evaluate(&rig, &faces, &codes, a.contact, &|m| {
+        bar.set_message(m.to_string())
+    })?;
     bar.finish_and_clear();
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     write_atomic(&a.out.join("eval.csv"), report.csv().as_bytes())?;
-    write_atomic(&a.out.join("eval.md"), report.table().as_bytes())?;
+    let md = format!(
+        "All posed codes:\n\n{}\nOnly the codes every model of the face posed:\n\n{}\n{}",
+        report.table(),
+        report.common_table(),
+        report.target_table()
+    );
+    write_atomic(&a.out.join("eval.md"), md.as_bytes())?;
     write_atomic(
         &a.out.join("eval.json"),
         serde_json::to_string_pretty(&report)?.as_bytes(),
     )?;
-    print!("{}", report.table());
+    print!("{md}");
+    if a.transfer {
+        let ids: Vec<usize> = (0..sample.faces.len())
+            .filter(|&i| sample.faces[i].identity.is_some())
+            .collect();
+        anyhow::ensure!(
+            ids.len() >= 2,
+            "style transfer needs two identities in the sample"
+        );
+        let transfers: Vec<NearestElementTransfer> = ids
+            .iter()
+            .enumerate()
+            .map(|(k, &b)| {
+                let src = ids[(k + 1) % ids.len()];
+                NearestElementTransfer::new(
+                    sample.faces[src].actuation.clone(),
+                    &sample.faces[src].model,
+                    &sample.faces[b].model,
+                )
+                .with_context(|| {
+                    format!(
+                        "carrying {} to {}",
+                        sample.faces[src].name, sample.faces[b].name
+                    )
+                })
+            })
+            .collect::<Result<_>>()?;
+        let names: Vec<String> = ids
+            .iter()
+            .enumerate()
+            .map(|(k, _)| format!("{} basis on B", sample.faces[ids[(k + 1) % ids.len()]].name))
+            .collect();
+        let faces: Vec<EvalFace<'_>> = ids
+            .iter()
+            .enumerate()
+            .map(|(k, &b)| {
+                let f = &sample.faces[b];
+                let mut models = vec![
+                    (
+                        "networks",
+                        EvalModel::Physics(&generative[b] as &dyn ActuationModel),
+                    ),
+                    (
+                        names[k].as_str(),
+                        EvalModel::Physics(&transfers[k] as &dyn ActuationModel),
+                    ),
+                    ("B's own basis", EvalModel::Physics(f.actuation.as_ref())),
+                ];
+                if let Some(d) = &displacement {
+                    models.push(("displacement", EvalModel::Displacement(&d[b])));
+                }
+                EvalFace {
+                    face: &f.model,
+                    style: sample.faces[ids[(k + 1) % ids.len()]].style,
+                    models,
+                }
+            })
+            .collect();
+        let bar = crate::spinner();
+        let t = facesim::generative::evaluate(&rig, &faces, &codes, a.contact, &|m| {
+            bar.set_message(format!("transfer: {m}"))
+        })?;
+        bar.finish_and_clear();
+        let md = format!(
+            "Style transfer (face B in the next identity's style A):\n\n{}\nOnly the codes every model posed:\n\n{}",
+            t.table(),
+            t.common_table()
+        );
+        write_atomic(&a.out.join("transfer.md"), md.as_bytes())?;
+        write_atomic(
+            &a.out.join("transfer.json"),
+            serde_json::to_string_pretty(&t)?.as_bytes(),
+        )?;
+        print!("\n{md}");
+    }
     for p in report.poses.iter().filter(|p| p.error.is_some()) {
         eprintln!(
             "{} / {} / code {}: {}",

@@ -57,3 +57,98 @@ fn bad_arguments_fail_with_a_message() {
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("invalid value"));
 }
+
+/// The displacement baseline end to end: `train --stage displacement` (a few poses per face,
+/// 3 iterations) writes its networks and loss curve; `eval --displacement … --transfer` poses
+/// a held-out code with it beside the physics models and writes the transfer table.
+#[test]
+fn train_displacement_then_eval_with_it() {
+    let rig =
+        std::env::var("FACESIM_RIG_DIR").unwrap_or_else(|_| "../shared/data/ict-facekit".into());
+    let dir = std::env::temp_dir().join(format!("facesim-displacement-{}", std::process::id()));
+    std::fs::remove_dir_all(&dir).ok();
+    let out = facesim()
+        .args([
+            "train",
+            "--stage",
+            "displacement",
+            "--sample",
+            "sample_models/ict",
+            "--rig",
+            &rig,
+        ])
+        .args([
+            "--iterations",
+            "3",
+            "--combinations",
+            "0",
+            "--seed",
+            "2",
+            "--out",
+        ])
+        .arg(&dir)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let model = dir.join("displacement.nn");
+    assert!(model.exists() && dir.join("displacement-checkpoint.nn").exists());
+    let csv = std::fs::read_to_string(dir.join("displacement-loss.csv")).unwrap();
+    assert_eq!(csv.lines().count(), 4, "{csv}");
+    assert!(
+        !dir.join("generative.nn").exists(),
+        "stage 1's file is not written"
+    );
+
+    let eval = dir.join("eval");
+    let out = facesim()
+        .args(["eval", "--sample", "sample_models/ict", "--rig", &rig])
+        .args([
+            "--model",
+            "sample_models/ict/generative.nn",
+            "--held-out",
+            "1",
+            "--transfer",
+        ])
+        .arg("--displacement")
+        .arg(&model)
+        .arg("--out")
+        .arg(&eval)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let table = String::from_utf8(out.stdout).unwrap();
+    assert!(
+        table.contains("| neutral | displacement | 1/1 |"),
+        "{table}"
+    );
+    assert!(table.contains("rig targets with lip crossings"), "{table}");
+    let transfer = std::fs::read_to_string(eval.join("transfer.md")).unwrap();
+    assert!(transfer.contains("identity001 basis on B"), "{transfer}");
+    // A stage-1 file is not a baseline.
+    let out = facesim()
+        .args([
+            "eval",
+            "--sample",
+            "sample_models/ict",
+            "--rig",
+            &rig,
+            "--held-out",
+            "1",
+        ])
+        .args(["--model", "sample_models/ict/generative.nn"])
+        .args(["--displacement", "sample_models/ict/generative.nn", "--out"])
+        .arg(&eval)
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("not a displacement-baseline file"));
+    std::fs::remove_dir_all(&dir).ok();
+}

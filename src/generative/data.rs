@@ -3,7 +3,8 @@
 //! For every training pose of a face (an expression code in a style), the rig's target skin
 //! ([`crate::model::target`]) is fitted by a passive simulation ([`ActuationFitter`]); the
 //! element actuations `A = sym(RᵀF)` (stored as `log A`, material space) and the jaw's rigid
-//! fit to the lower teeth are the pose's labels. A face's poses are cached in one versioned
+//! fit to the lower teeth are the pose's labels (and, for the displacement baseline, where the
+//! fit put every simulation vertex). A face's poses are cached in one versioned
 //! file (`<face>.poses`) and regenerated only when it is missing or was made with other
 //! settings or another mesh.
 //!
@@ -31,7 +32,7 @@ use crate::rig::{ExpressionCode, FaceRig, StyleCode};
 /// way poses are made changes.
 pub const POSES_FORMAT: Format = Format {
     kind: "poses",
-    version: 2,
+    version: 3,
 };
 
 /// A content hash of a face's simulation mesh and render rest (the poses are stale when the
@@ -140,6 +141,10 @@ pub struct PoseData {
     pub jaw: [f64; 6],
     /// `log A` per element, material space (`[xx, yy, zz, xy, xz, yz]`).
     pub logs: Vec<[f32; 6]>,
+    /// Per simulation vertex, where the fit put it minus its rest position (cm, material
+    /// space): the labels of the displacement baseline ([`super::displacement`]), from the
+    /// same fitted state the actuations describe.
+    pub displacements: Vec<[f32; 3]>,
     /// Fitted skin against the target, RMS (cm).
     pub skin_rms: f64,
     /// Elements whose stretch the fit clamped.
@@ -194,6 +199,13 @@ impl FacePoses {
                 codes: *codes,
                 jaw: target.jaw.motion.params(),
                 logs: fit.tensors.iter().map(log_tensor).collect(),
+                displacements: face
+                    .mesh
+                    .vertices
+                    .iter()
+                    .zip(fit.positions.chunks_exact(3))
+                    .map(|(rest, x)| [0, 1, 2].map(|k| (x[k] - rest[k]) as f32))
+                    .collect(),
                 skin_rms: fit.skin_rms,
                 clamped: fit.clamped,
             });
@@ -229,10 +241,10 @@ impl FacePoses {
             && poses.face_hash == face_hash(face)
             && poses.element_count == face.mesh.element_count()
             && poses.settings == *settings
-            && poses
-                .poses
-                .iter()
-                .all(|p| p.logs.len() == poses.element_count);
+            && poses.poses.iter().all(|p| {
+                p.logs.len() == poses.element_count
+                    && p.displacements.len() == face.mesh.vertex_count()
+            });
         Ok(matches.then_some(poses))
     }
 

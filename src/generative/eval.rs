@@ -1,21 +1,34 @@
-//! Held-out evaluation: simulate codes no training pose used with each actuation model and
-//! measure the render skin against the rig's target.
+//! Held-out evaluation: codes no training pose used, posed by each model, measured against
+//! the rig's target and for volume and lip crossings.
 //!
-//! Per face and model, every held-out expression code (in the face's default style) is turned
-//! into actuations and a jaw pose, solved from rest at the final preset without contact, and
-//! the embedded render vertices (skin and lips: what the tissue carries; rigid teeth and the
-//! skull-bound parts are left out) are compared with [`crate::model::target`]. Errors are
-//! pooled over the vertices of all solved poses (mean, 95th percentile, max, in mm); solves
-//! that fail (e.g. folded elements) are counted, not hidden.
+//! Per face and model, every held-out expression code (in the face's default style) is posed:
+//! a physics model ([`EvalModel::Physics`]: actuations and a jaw) is solved from rest at the
+//! final preset without contact; the displacement baseline ([`EvalModel::Displacement`]) is
+//! read out directly. Then on the same footing for both:
+//! - vertex error: the embedded render vertices (skin and lips: what the tissue carries; rigid
+//!   teeth and the skull-bound parts are left out) against [`crate::model::target`], pooled
+//!   over the vertices of all posed codes (mean, 95th percentile, max, in mm);
+//! - volume ([`VolumeChange`]): mean `|det F − 1|` over the elements of all posed codes, the
+//!   tissue's total volume change (mean and largest magnitude over codes), inverted elements;
+//! - lip crossings ([`lip_crossings`]): new edge–triangle crossings of the lips, mouth and
+//!   teeth; codes with any, and the total.
+//!
+//! Codes that fail (a physics solve that folds elements, a non-finite output) are counted, not
+//! hidden; their metrics are left out of the pooled ones, so rows of models that failed on
+//! different codes pool different codes. The common rows pool only the codes every model of
+//! the face posed (like for like); the per-code records say which failed.
 
 use serde::{Deserialize, Serialize};
 
 use super::GenerativeError;
+use super::displacement::DisplacementFace;
+use super::metrics::{VolumeChange, lip_crossings, target_crossings};
+use crate::contact::face::{FaceContact, FaceContactSettings};
 use crate::drive::{ActuationModel, Codes};
 use crate::mapping::warp::quantile;
 use crate::model::FaceModel;
 use crate::rig::{ExpressionCode, FaceRig, StyleCode};
-use crate::sim::Quality;
+use crate::sim::{BonePose, Quality, Simulator};
 
 /// Millimetres per model unit (cm).
 const MM: f64 = 10.0;
@@ -31,6 +44,16 @@ pub struct EvalRow {
     pub mean_mm: Option<f64>,
     pub p95_mm: Option<f64>,
     pub max_mm: Option<f64>,
+    /// Mean `|det F − 1|` over the elements of the posed codes.
+    pub mean_abs_det_change: Option<f64>,
+    /// Mean and largest `|ΣV(x)/ΣV(X) − 1|` over the posed codes.
+    pub mean_abs_volume_change: Option<f64>,
+    pub max_abs_volume_change: Option<f64>,
+    /// Inverted elements summed over the posed codes.
+    pub inverted: usize,
+    /// Posed codes with lip crossings, and the crossings summed over them.
+    pub crossing_poses: usize,
+    pub crossings: usize,
 }
 
 /// One face, model and code.
@@ -43,42 +66,103 @@ pub struct EvalPose {
     pub error: Option<String>,
     pub mean_mm: Option<f64>,
     pub max_mm: Option<f64>,
+    /// Solver iterations (0 for the displacement baseline).
     pub iterations: usize,
+    pub volume: Option<VolumeChange>,
+    pub crossings: Option<usize>,
+}
+
+/// The rig's own targets for the held-out codes: how many of them already have crossing
+/// lips (the rig blends shapes linearly and knows nothing of contact), the reference for the
+/// models' crossing counts.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TargetCrossings {
+    pub face: String,
+    pub poses: usize,
+    pub crossing_poses: usize,
+    pub crossings: usize,
 }
 
 /// The whole evaluation.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct EvalReport {
     pub codes: Vec<ExpressionCode>,
+    /// Whether the physics models were solved with lip and teeth contact.
+    pub contact: bool,
+    /// Per face and model, over every code it posed.
     pub rows: Vec<EvalRow>,
+    /// The same over only the codes every model of the face posed (the like-for-like
+    /// comparison when some model failed on some code).
+    pub common_rows: Vec<EvalRow>,
     pub poses: Vec<EvalPose>,
+    pub targets: Vec<TargetCrossings>,
 }
 
-/// A face to evaluate: the model, its default style and the actuation models to compare
-/// (name, model).
+/// How a model poses a face.
+#[derive(Clone, Copy)]
+pub enum EvalModel<'a> {
+    /// Actuations and a jaw, solved (no contact).
+    Physics(&'a dyn ActuationModel),
+    /// Vertex positions straight from the displacement network.
+    Displacement(&'a DisplacementFace),
+}
+
+/// A face to evaluate: the model, its default style and the models to compare (name, model).
 pub struct EvalFace<'a> {
     pub face: &'a FaceModel,
     pub style: StyleCode,
-    pub models: Vec<(&'a str, &'a dyn ActuationModel)>,
+    pub models: Vec<(&'a str, EvalModel<'a>)>,
+}
+
+fn opt(v: Option<f64>, digits: usize) -> String {
+    v.map_or("-".to_string(), |v| format!("{v:.digits$}"))
 }
 
 impl EvalReport {
-    /// The table as Markdown.
+    /// The table as Markdown (over every posed code).
     pub fn table(&self) -> String {
+        Self::markdown(&self.rows)
+    }
+
+    /// The table over the codes every model of a face posed.
+    pub fn common_table(&self) -> String {
+        Self::markdown(&self.common_rows)
+    }
+
+    fn markdown(rows: &[EvalRow]) -> String {
         let mut s = String::from(
-            "| face | model | poses solved | vertex error mean (mm) | p95 (mm) | max (mm) |\n|---|---|---:|---:|---:|---:|\n",
+            "| face | model | poses solved | vertex error mean (mm) | p95 (mm) | max (mm) | mean \\|det F − 1\\| | volume change mean / max (%) | inverted elements | poses with lip crossings (crossings) |\n|---|---|---:|---:|---:|---:|---:|---:|---:|---:|\n",
         );
-        let mm = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.3}"));
-        for r in &self.rows {
+        let pct = |v: Option<f64>| opt(v.map(|v| 100.0 * v), 2);
+        for r in rows {
             s.push_str(&format!(
-                "| {} | {} | {}/{} | {} | {} | {} |\n",
+                "| {} | {} | {}/{} | {} | {} | {} | {} | {} / {} | {} | {} ({}) |\n",
                 r.face,
                 r.model,
                 r.poses - r.failed,
                 r.poses,
-                mm(r.mean_mm),
-                mm(r.p95_mm),
-                mm(r.max_mm)
+                opt(r.mean_mm, 3),
+                opt(r.p95_mm, 3),
+                opt(r.max_mm, 3),
+                opt(r.mean_abs_det_change, 4),
+                pct(r.mean_abs_volume_change),
+                pct(r.max_abs_volume_change),
+                r.inverted,
+                r.crossing_poses,
+                r.crossings
+            ));
+        }
+        s
+    }
+
+    /// The rig targets' crossings as Markdown.
+    pub fn target_table(&self) -> String {
+        let mut s =
+            String::from("| face | rig targets with lip crossings (crossings) |\n|---|---:|\n");
+        for t in &self.targets {
+            s.push_str(&format!(
+                "| {} | {}/{} ({}) |\n",
+                t.face, t.crossing_poses, t.poses, t.crossings
             ));
         }
         s
@@ -86,38 +170,79 @@ impl EvalReport {
 
     /// The rows as CSV.
     pub fn csv(&self) -> String {
-        let mut s = String::from("face,model,poses,failed,mean_mm,p95_mm,max_mm\n");
-        let mm = |v: Option<f64>| v.map_or(String::new(), |v| v.to_string());
+        let mut s = String::from(
+            "face,model,poses,failed,mean_mm,p95_mm,max_mm,mean_abs_det_change,mean_abs_volume_change,max_abs_volume_change,inverted,crossing_poses,crossings\n",
+        );
+        let v = |v: Option<f64>| v.map_or(String::new(), |v| v.to_string());
         for r in &self.rows {
             s.push_str(&format!(
-                "{},{},{},{},{},{},{}\n",
+                "{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
                 r.face,
                 r.model,
                 r.poses,
                 r.failed,
-                mm(r.mean_mm),
-                mm(r.p95_mm),
-                mm(r.max_mm)
+                v(r.mean_mm),
+                v(r.p95_mm),
+                v(r.max_mm),
+                v(r.mean_abs_det_change),
+                v(r.mean_abs_volume_change),
+                v(r.max_abs_volume_change),
+                r.inverted,
+                r.crossing_poses,
+                r.crossings
             ));
         }
         s
     }
 }
 
-/// Evaluates every face's models on `codes` (module docs).
+/// Simulation positions and bones of one code with one model, or why it failed.
+fn pose(
+    model: EvalModel<'_>,
+    sim: &Simulator,
+    contact: bool,
+    codes: &Codes,
+) -> Result<(Vec<f64>, BonePose, usize), String> {
+    match model {
+        EvalModel::Physics(m) => {
+            let mut settings = Quality::Final.settings();
+            settings.contact = contact;
+            let a = m.actuate(codes).map_err(|e| e.to_string())?;
+            let mut state = sim.rest_state();
+            let stats = sim
+                .solve(&a.tensors, &a.bones(), &mut state, &settings)
+                .map_err(|e| e.to_string())?;
+            Ok((state.flat_positions().to_vec(), a.bones(), stats.iterations))
+        }
+        EvalModel::Displacement(d) => {
+            let p = d.pose(codes).map_err(|e| e.to_string())?;
+            Ok((p.positions, p.bones, 0))
+        }
+    }
+}
+
+/// Evaluates every face's models on `codes` (module docs); with `contact_on`, the physics
+/// models are solved with lip and teeth contact (IPC), which costs tens of times more.
 pub fn evaluate(
     rig: &FaceRig,
     faces: &[EvalFace<'_>],
     codes: &[ExpressionCode],
+    contact_on: bool,
     progress: &dyn Fn(&str),
 ) -> Result<EvalReport, GenerativeError> {
     let mut rows = Vec::new();
     let mut poses = Vec::new();
-    let mut settings = Quality::Final.settings();
-    settings.contact = false;
+    let mut target_rows = Vec::new();
+    let mut common_rows = Vec::new();
     for f in faces {
         let face = f.face;
-        let sim = face.simulator()?;
+        let mut sim = face.simulator()?;
+        let contact = FaceContact::new(face, &FaceContactSettings::default()).map_err(|e| {
+            GenerativeError::Config(format!("contact surfaces of {}: {e}", face.name))
+        })?;
+        if contact_on {
+            sim.set_contact(contact.clone())?;
+        }
         let embedded: Vec<usize> = face
             .render
             .bindings
@@ -143,16 +268,29 @@ pub fn evaluate(
                 })
             })
             .collect::<Result<Vec<_>, _>>()?;
+        let mut target_row = TargetCrossings {
+            face: face.name.clone(),
+            poses: targets.len(),
+            crossing_poses: 0,
+            crossings: 0,
+        };
+        for t in &targets {
+            let n = target_crossings(&contact, &t.render);
+            target_row.crossing_poses += usize::from(n > 0);
+            target_row.crossings += n;
+        }
+        target_rows.push(target_row);
+        // Per model, per code: the vertex errors, volume and crossings of a posed code.
+        let mut results: Vec<Vec<Option<Posed>>> = Vec::new();
         for &(name, model) in &f.models {
             progress(&format!("{} with {name}", face.name));
-            let mut errors = Vec::new();
-            let mut failed = 0;
+            let mut per_code = Vec::new();
             for (c, (&expression, target)) in codes.iter().zip(&targets).enumerate() {
                 let codes = Codes {
                     expression,
                     style: f.style,
                 };
-                let mut pose = EvalPose {
+                let mut record = EvalPose {
                     face: face.name.clone(),
                     model: name.to_string(),
                     code: c,
@@ -160,58 +298,118 @@ pub fn evaluate(
                     mean_mm: None,
                     max_mm: None,
                     iterations: 0,
+                    volume: None,
+                    crossings: None,
                 };
-                let solved = model
-                    .actuate(&codes)
-                    .map_err(|e| e.to_string())
-                    .and_then(|a| {
-                        let mut state = sim.rest_state();
-                        sim.solve(&a.tensors, &a.bones(), &mut state, &settings)
-                            .map(|stats| (a, state, stats))
-                            .map_err(|e| e.to_string())
-                    });
-                match solved {
-                    Ok((a, state, stats)) => {
-                        let render = face.render_positions(state.flat_positions(), &a.bones());
-                        let e: Vec<f64> = embedded
+                match pose(model, &sim, contact_on, &codes) {
+                    Ok((x, bones, iterations)) => {
+                        let render = face.render_positions(&x, &bones);
+                        let errors: Vec<f64> = embedded
                             .iter()
                             .map(|&v| MM * (render[v] - target.render[v]).norm())
                             .collect();
-                        pose.mean_mm = Some(e.iter().sum::<f64>() / e.len().max(1) as f64);
-                        pose.max_mm = Some(e.iter().copied().fold(0.0, f64::max));
-                        pose.iterations = stats.iterations;
-                        errors.extend(e);
+                        let volume = VolumeChange::of(&face.mesh, &x);
+                        let crossings = lip_crossings(&contact, &x, &bones);
+                        record.mean_mm =
+                            Some(errors.iter().sum::<f64>() / errors.len().max(1) as f64);
+                        record.max_mm = Some(errors.iter().copied().fold(0.0, f64::max));
+                        record.iterations = iterations;
+                        record.volume = Some(volume);
+                        record.crossings = Some(crossings);
+                        per_code.push(Some(Posed {
+                            errors,
+                            volume,
+                            crossings,
+                        }));
                     }
                     Err(msg) => {
-                        failed += 1;
-                        pose.error = Some(msg);
+                        record.error = Some(msg);
+                        per_code.push(None);
                     }
                 }
-                poses.push(pose);
+                poses.push(record);
             }
-            let (mean, p95, max) = if errors.is_empty() {
-                (None, None, None)
-            } else {
-                (
-                    Some(errors.iter().sum::<f64>() / errors.len() as f64),
-                    Some(quantile(&errors, 0.95)),
-                    Some(errors.iter().copied().fold(0.0, f64::max)),
-                )
-            };
-            rows.push(EvalRow {
-                face: face.name.clone(),
-                model: name.to_string(),
-                poses: codes.len(),
-                failed,
-                mean_mm: mean,
-                p95_mm: p95,
-                max_mm: max,
-            });
+            results.push(per_code);
+        }
+        let common: Vec<bool> = (0..codes.len())
+            .map(|c| results.iter().all(|r| r[c].is_some()))
+            .collect();
+        for (&(name, _), per_code) in f.models.iter().zip(&results) {
+            let all = vec![true; codes.len()];
+            rows.push(pooled_row(
+                &face.name,
+                name,
+                face.mesh.tets.len(),
+                per_code,
+                &all,
+            ));
+            common_rows.push(pooled_row(
+                &face.name,
+                name,
+                face.mesh.tets.len(),
+                per_code,
+                &common,
+            ));
         }
     }
     Ok(EvalReport {
         codes: codes.to_vec(),
+        contact: contact_on,
         rows,
+        common_rows,
         poses,
+        targets: target_rows,
     })
+}
+
+/// What one posed code gave.
+struct Posed {
+    errors: Vec<f64>,
+    volume: VolumeChange,
+    crossings: usize,
+}
+
+/// One model's row pooled over the codes `keep` selects (`poses` counts those, `failed`
+/// those of them that did not pose).
+fn pooled_row(
+    face: &str,
+    model: &str,
+    elements: usize,
+    per_code: &[Option<Posed>],
+    keep: &[bool],
+) -> EvalRow {
+    let kept: Vec<&Option<Posed>> = per_code
+        .iter()
+        .zip(keep)
+        .filter(|(_, k)| **k)
+        .map(|(p, _)| p)
+        .collect();
+    let posed: Vec<&Posed> = kept.iter().filter_map(|p| p.as_ref()).collect();
+    let errors: Vec<f64> = posed
+        .iter()
+        .flat_map(|p| p.errors.iter().copied())
+        .collect();
+    let changes: Vec<f64> = posed.iter().map(|p| p.volume.total_change.abs()).collect();
+    let some = |v: f64| (!posed.is_empty()).then_some(v);
+    EvalRow {
+        face: face.to_string(),
+        model: model.to_string(),
+        poses: kept.len(),
+        failed: kept.len() - posed.len(),
+        mean_mm: some(errors.iter().sum::<f64>() / errors.len().max(1) as f64),
+        p95_mm: some(quantile(&errors, 0.95)),
+        max_mm: some(errors.iter().copied().fold(0.0, f64::max)),
+        mean_abs_det_change: some(
+            posed
+                .iter()
+                .map(|p| p.volume.mean_abs_det_change * elements as f64)
+                .sum::<f64>()
+                / (elements * posed.len()).max(1) as f64,
+        ),
+        mean_abs_volume_change: some(changes.iter().sum::<f64>() / changes.len().max(1) as f64),
+        max_abs_volume_change: some(changes.iter().copied().fold(0.0, f64::max)),
+        inverted: posed.iter().map(|p| p.volume.inverted).sum(),
+        crossing_poses: posed.iter().filter(|p| p.crossings > 0).count(),
+        crossings: posed.iter().map(|p| p.crossings).sum(),
+    }
 }

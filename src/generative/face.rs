@@ -61,8 +61,58 @@ impl FaceWarp {
         }
     }
 
+    /// The same for the face's simulation *vertices* (the displacement baseline's points):
+    /// φ(vertex) and R_φ at the vertex.
+    pub fn vertices(
+        face: &FaceModel,
+        mapping: Option<&Mapping>,
+        frame: &CanonicalFrame,
+    ) -> Result<Self, GenerativeError> {
+        match (face.identity, mapping) {
+            (None, _) => Ok(FaceWarp {
+                canonical: face
+                    .mesh
+                    .vertices
+                    .iter()
+                    .map(|p| frame.normalize(p))
+                    .collect(),
+                rotations: None,
+            }),
+            (Some(_), None) => Err(GenerativeError::NoMapping {
+                face: face.name.clone(),
+            }),
+            (Some(_), Some(m)) => {
+                m.check_face(face)?;
+                let mapped = m.evaluate(&face.mesh.vertices)?;
+                Ok(FaceWarp {
+                    canonical: mapped
+                        .iter()
+                        .map(|p| frame.normalize(&p.canonical))
+                        .collect(),
+                    rotations: Some(mapped.iter().map(|p| p.rotation()).collect()),
+                })
+            }
+        }
+    }
+
     pub fn len(&self) -> usize {
         self.canonical.len()
+    }
+
+    /// A material-space vector at point `i` in canonical space: `R_φ v`.
+    pub fn vector_to_canonical(&self, i: usize, v: &[f64; 3]) -> [f64; 3] {
+        match &self.rotations {
+            None => *v,
+            Some(r) => (r[i] * nalgebra::Vector3::from(*v)).into(),
+        }
+    }
+
+    /// A canonical vector at point `i` in material space: `R_φᵀ v`.
+    pub fn vector_to_material(&self, i: usize, v: &[f64; 3]) -> [f64; 3] {
+        match &self.rotations {
+            None => *v,
+            Some(r) => (r[i].transpose() * nalgebra::Vector3::from(*v)).into(),
+        }
     }
 
     pub fn is_empty(&self) -> bool {

@@ -28,7 +28,7 @@ use serde::{Deserialize, Serialize};
 use super::GenerativeError;
 use super::nets::GenerativeNets;
 use crate::drive::Codes;
-use crate::nn::{ChunkedGradient, CodeBatch, Pass, Tape};
+use crate::nn::{ChunkedGradient, CodeBatch, Mlp, Pass, Tape};
 
 /// Frobenius weights of the 6 stored entries `[xx, yy, zz, xy, xz, yz]`.
 pub const FROBENIUS: [f64; 6] = [1.0, 1.0, 1.0, 2.0, 2.0, 2.0];
@@ -100,6 +100,15 @@ impl LossWorkspace {
             chunked: ChunkedGradient::new(chunk_rows, lanes)?,
             tapes: [Tape::new(), Tape::new(), Tape::new()],
         })
+    }
+
+    /// The three tapes (encoders and N_B here; the displacement baseline uses two).
+    pub(crate) fn tapes_mut(&mut self) -> &mut [Tape<f64>; 3] {
+        &mut self.tapes
+    }
+
+    pub(crate) fn chunked_mut(&mut self) -> &mut ChunkedGradient<f64> {
+        &mut self.chunked
     }
 }
 
@@ -192,26 +201,15 @@ pub fn batch_loss(
     let mut du: Vec<f64> = ws.chunked.code_grad().to_vec();
 
     // N_B: jaw term.
-    nets.jaw
-        .forward(u.as_ref(), None, Pass::Gradient, tape_b, Par::Seq)?;
-    let yj = tape_b.output().expect("outputs");
-    let r2 = w.jaw_lever_cm * w.jaw_lever_cm;
-    let jw = [r2, r2, r2, 1.0, 1.0, 1.0];
-    let inv_b = 1.0 / b_count as f64;
-    let mut jaw = 0.0;
-    let dyj = Mat::from_fn(b_count, 6, |b, k| {
-        let r = yj[(b, k)] - batch.jaw[b][k];
-        jaw += jw[k] * r * r * inv_b;
-        2.0 * jw[k] * r * inv_b
-    });
-    nets.jaw
-        .backward(tape_b, Some(dyj.as_ref()), None, grad_b, Par::Seq)?;
-    let dub = tape_b.input_grad().expect("after backward");
-    for b in 0..b_count {
-        for k in 0..cd {
-            du[b * cd + k] += dub[(b, k)];
-        }
-    }
+    let jaw = jaw_term(
+        &nets.jaw,
+        &u,
+        &batch.jaw,
+        w.jaw_lever_cm,
+        tape_b,
+        grad_b,
+        &mut du,
+    )?;
 
     // tanh and the encoders.
     let dz = |b: usize, k: usize| du[b * cd + k] * (1.0 - u[(b, k)] * u[(b, k)]);
@@ -234,4 +232,38 @@ pub fn batch_loss(
         lip,
         total: fit + jaw + lambda_act * act + lip_weighted,
     })
+}
+
+/// `L_jaw` of N_B on the modulation rows `u` (B × code_dim) against the fitted jaws; **adds**
+/// N_B's parameter gradient into `grad` and its input gradient into `du` (row-major B ×
+/// code_dim). Shared by the physics networks and the displacement baseline (same jaw).
+pub(crate) fn jaw_term(
+    jaw_net: &Mlp<f64>,
+    u: &Mat<f64>,
+    targets: &[[f64; 6]],
+    jaw_lever_cm: f64,
+    tape: &mut Tape<f64>,
+    grad: &mut [f64],
+    du: &mut [f64],
+) -> Result<f64, GenerativeError> {
+    let (b_count, cd) = (u.nrows(), u.ncols());
+    jaw_net.forward(u.as_ref(), None, Pass::Gradient, tape, Par::Seq)?;
+    let yj = tape.output().expect("outputs");
+    let r2 = jaw_lever_cm * jaw_lever_cm;
+    let jw = [r2, r2, r2, 1.0, 1.0, 1.0];
+    let inv_b = 1.0 / b_count as f64;
+    let mut jaw = 0.0;
+    let dyj = Mat::from_fn(b_count, 6, |b, k| {
+        let r = yj[(b, k)] - targets[b][k];
+        jaw += jw[k] * r * r * inv_b;
+        2.0 * jw[k] * r * inv_b
+    });
+    jaw_net.backward(tape, Some(dyj.as_ref()), None, grad, Par::Seq)?;
+    let dub = tape.input_grad().expect("after backward");
+    for b in 0..b_count {
+        for k in 0..cd {
+            du[b * cd + k] += dub[(b, k)];
+        }
+    }
+    Ok(jaw)
 }

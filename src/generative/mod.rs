@@ -11,24 +11,34 @@
 //!   [`crate::drive::fit`] on the rig's targets, cached on disk.
 //! - [`loss`]: the stage-1 loss and its gradient through all four networks.
 //! - [`train`]: the stage-1 training loop (Adam, linear decay, checkpoints, resume).
-//! - [`eval`]: held-out codes simulated with the networks and with the actuation basis.
+//! - [`displacement`]: the paper's baseline, a displacement network of N_A's shape trained
+//!   on the same poses (no physics).
+//! - [`transfer`]: style transfer without canonical space (A's actuations on B's elements).
+//! - [`eval`]: held-out codes simulated with the networks and with the actuation basis, and
+//!   the baseline's displacements, on the same poses.
 
 pub mod data;
+pub mod displacement;
 pub mod eval;
 pub mod expm;
 pub mod face;
 pub mod loss;
+pub mod metrics;
 pub mod nets;
 pub mod train;
+pub mod transfer;
 
 #[cfg(test)]
-mod tests;
+pub(crate) mod tests;
 
 pub use data::{FacePoses, PoseData, PoseSettings, held_out_codes, training_codes};
+pub use displacement::{DisplacementData, DisplacementFace, DisplacementNets};
 pub use eval::{EvalReport, EvalRow, evaluate};
 pub use face::{GenerativeFace, SAMPLE_NETWORKS, load_sample_networks, sample_actuations};
 pub use nets::{Architecture, CanonicalFrame, GenerativeNets};
-pub use train::{LossRow, Stage1Config, Stage1Data, train_stage1};
+pub use train::{
+    LossRow, ModelTrainer, Stage1Config, Stage1Data, TrainableNets, train_model, train_stage1,
+};
 
 use crate::drive::DriveError;
 use crate::drive::fit::FitError;
@@ -59,6 +69,8 @@ pub enum GenerativeError {
     NoMapping { face: String },
     #[error("invalid setting: {0}")]
     Config(String),
+    #[error("non-finite output: {0}")]
+    NonFinite(String),
     #[error("training diverged at iteration {0} (non-finite loss or gradient)")]
     Diverged(u64),
     #[error("{0}")]

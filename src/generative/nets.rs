@@ -90,6 +90,22 @@ impl Architecture {
         spec.layer(LayerSpec::linear(6))
     }
 
+    /// The displacement baseline's network ([`super::displacement`]): N_A's shape (SIREN
+    /// first layer on X̂, modulated Lipschitz GeLU layers) with 3 outputs, a displacement (cm).
+    pub fn displacement_spec(&self) -> MlpSpec {
+        let mut spec = MlpSpec::new(3)
+            .with_code_dim(self.code_dim())
+            .layer(LayerSpec::siren_first(self.actuation_width, self.omega0));
+        for _ in 0..self.actuation_gelu_layers {
+            spec = spec.layer(
+                LayerSpec::gelu(self.actuation_width)
+                    .lipschitz()
+                    .with_code(),
+            );
+        }
+        spec.layer(LayerSpec::linear(3))
+    }
+
     pub fn jaw_spec(&self) -> MlpSpec {
         MlpSpec::new(self.code_dim())
             .layer(LayerSpec::gelu(self.jaw_width))

@@ -6,7 +6,8 @@ use std::sync::{Arc, OnceLock};
 use faer::Par;
 
 use super::data::{FacePoses, PoseData, PoseSettings, held_out_codes, training_codes};
-use super::eval::{EvalFace, evaluate};
+use super::displacement::{DisplacementFace, DisplacementNets};
+use super::eval::{EvalFace, EvalModel, evaluate};
 use super::face::{FaceWarp, GenerativeFace};
 use super::loss::{LossWeights, LossWorkspace, batch_loss, zero_grads};
 use super::nets::{Architecture, CanonicalFrame, GenerativeNets};
@@ -17,16 +18,16 @@ use crate::rig::test_support::{rig, temp_dir};
 use crate::rig::{ExpressionCode, StyleCode};
 use crate::sample::{SAMPLE_DIR, Sample};
 
-fn sample() -> &'static Sample {
+pub(crate) fn sample() -> &'static Sample {
     static SAMPLE: OnceLock<Sample> = OnceLock::new();
     SAMPLE.get_or_init(|| Sample::load(SAMPLE_DIR).expect("the bundled sample"))
 }
 
-fn frame() -> CanonicalFrame {
+pub(crate) fn frame() -> CanonicalFrame {
     CanonicalFrame::of(&sample().faces[0].model)
 }
 
-fn tiny() -> Architecture {
+pub(crate) fn tiny() -> Architecture {
     Architecture {
         expression_hidden: 8,
         expression_dim: 5,
@@ -40,8 +41,8 @@ fn tiny() -> Architecture {
 }
 
 /// Poses of sample face `f` labelled by its actuation basis (cheap stand-ins for the rig's
-/// fits, same shape of data).
-fn basis_poses(f: usize, codes: &[Codes]) -> FacePoses {
+/// fits, same shape of data; no vertex displacements: see the displacement tests).
+pub(crate) fn basis_poses(f: usize, codes: &[Codes]) -> FacePoses {
     let face = &sample().faces[f];
     let poses = codes
         .iter()
@@ -51,6 +52,7 @@ fn basis_poses(f: usize, codes: &[Codes]) -> FacePoses {
                 codes: *c,
                 jaw: a.jaw.params(),
                 logs: a.tensors.iter().map(log_tensor).collect(),
+                displacements: Vec::new(),
                 skin_rms: 0.0,
                 clamped: 0,
             }
@@ -292,6 +294,23 @@ fn pose_cache_round_trip() {
     let poses =
         FacePoses::generate(rig(), &face.model, face.style, 1, &settings, &|_, _| {}).unwrap();
     assert_eq!(poses.poses.len(), 3);
+    // Every simulation vertex gets the fit's displacement: none at rest, some otherwise.
+    let n = face.model.mesh.vertex_count();
+    assert!(poses.poses.iter().all(|p| p.displacements.len() == n));
+    assert!(
+        poses.poses[0]
+            .displacements
+            .iter()
+            .flatten()
+            .all(|v| v.abs() < 1e-3)
+    );
+    assert!(
+        poses.poses[1]
+            .displacements
+            .iter()
+            .flatten()
+            .any(|v| v.abs() > 1e-2)
+    );
     // The rest pose fits to A ≈ I, the others move something.
     assert!(poses.poses[0].logs.iter().flatten().all(|v| v.abs() < 1e-3));
     assert!(poses.poses[1].logs.iter().flatten().any(|v| v.abs() > 1e-2));
@@ -338,29 +357,79 @@ fn held_out_codes_and_eval_run() {
     let f = &s.faces[0];
     let nets = Arc::new(GenerativeNets::new(tiny(), frame(), 1).unwrap());
     let g = GenerativeFace::new(nets, &f.model, None).unwrap();
+    let d = DisplacementFace::new(
+        Arc::new(DisplacementNets::new(tiny(), frame(), 1).unwrap()),
+        &f.model,
+        None,
+    )
+    .unwrap();
     let report = evaluate(
         rig(),
         &[EvalFace {
             face: &f.model,
             style: f.style,
-            models: vec![("networks", &g), ("basis", f.actuation.as_ref())],
+            models: vec![
+                ("networks", EvalModel::Physics(&g)),
+                ("basis", EvalModel::Physics(f.actuation.as_ref())),
+                ("displacement", EvalModel::Displacement(&d)),
+            ],
         }],
         &codes,
+        false,
         &|_| {},
     )
     .unwrap();
-    assert_eq!(report.rows.len(), 2);
-    assert_eq!(report.poses.len(), 4);
+    assert_eq!(report.rows.len(), 3);
+    assert_eq!(report.targets.len(), 1);
+    assert_eq!(report.common_rows.len(), 3);
+    // Common rows pool exactly the codes all three models posed.
+    let common = (0..2)
+        .filter(|&c| {
+            report
+                .poses
+                .iter()
+                .filter(|p| p.code == c)
+                .all(|p| p.error.is_none())
+        })
+        .count();
+    assert!(
+        report
+            .common_rows
+            .iter()
+            .all(|r| r.poses == common && r.failed == 0)
+    );
+    assert_eq!(report.targets[0].poses, 2);
+    assert_eq!(report.poses.len(), 6);
     let basis = &report.rows[1];
     assert_eq!(basis.failed, 0, "{report:?}");
     let (mean, max) = (basis.mean_mm.unwrap(), basis.max_mm.unwrap());
     assert!(mean > 0.0 && mean < 2.0 && max >= mean, "{basis:?}");
+    // The solved tissue changes volume a little, folds nothing (a fold fails the solve).
+    let det = basis.mean_abs_det_change.unwrap();
+    assert!(det > 0.0 && det < 0.5, "{basis:?}");
+    assert_eq!(basis.inverted, 0);
+    assert!(basis.max_abs_volume_change.unwrap() >= basis.mean_abs_volume_change.unwrap());
+    // The (untrained) baseline is read out without a solve, with the same metrics.
+    let base = &report.rows[2];
+    assert_eq!((base.model.as_str(), base.failed), ("displacement", 0));
+    assert!(base.mean_mm.unwrap() > 0.0 && base.mean_abs_det_change.unwrap() > 0.0);
+    let base_poses: Vec<_> = report
+        .poses
+        .iter()
+        .filter(|p| p.model == "displacement")
+        .collect();
+    assert!(
+        base_poses
+            .iter()
+            .all(|p| p.iterations == 0 && p.volume.is_some() && p.crossings.is_some())
+    );
     assert!(
         report.table().contains("| basis | 2/2 |"),
         "{}",
         report.table()
     );
-    assert!(report.csv().lines().count() == 3);
+    assert!(report.table().contains("inverted elements"));
+    assert!(report.csv().lines().count() == 4);
     let _ = ExpressionCode::LEN;
 }
 

@@ -14,10 +14,10 @@ use serde::{Deserialize, Serialize};
 use super::GenerativeError;
 use super::data::FacePoses;
 use super::face::FaceWarp;
-use super::loss::{Batch, LossParts, LossWeights, LossWorkspace, batch_loss, zero_grads};
+use super::loss::{Batch, Grads, LossParts, LossWeights, LossWorkspace, batch_loss};
 use super::nets::{Architecture, CanonicalFrame, GenerativeNets, NET_NAMES, from_hex, to_hex};
 use crate::drive::Codes;
-use crate::nn::{Adam, AdamConfig, Checkpoint, LrSchedule};
+use crate::nn::{Adam, AdamConfig, Checkpoint, LrSchedule, Mlp};
 
 /// Stage-1 settings.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -131,25 +131,11 @@ impl Stage1Data {
 
     /// The batch of iteration `it` (module docs).
     pub fn batch(&self, config: &Stage1Config, it: u64) -> Batch {
-        let mut rng = ChaCha8Rng::seed_from_u64(
-            config.seed ^ 0xba7c_4e55 ^ it.wrapping_mul(0x9e37_79b9_7f4a_7c15),
-        );
-        let b = config.batch_poses.min(self.index.len());
-        let picks = rand::seq::index::sample(&mut rng, self.index.len(), b).into_vec();
         let (mut codes, mut counts, mut targets, mut jaw, mut rows) =
             (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
-        for i in picks {
-            let (f, p) = self.index[i];
+        for (f, p, elements) in batch_picks(config, it, &self.index, |f| self.faces[f].warp.len()) {
             let face = &self.faces[f];
             let pose = &face.poses[p];
-            let n = face.warp.len();
-            let m = config.elements_per_pose;
-            let mut elements = if m == 0 || m >= n {
-                (0..n).collect()
-            } else {
-                rand::seq::index::sample(&mut rng, n, m).into_vec()
-            };
-            elements.sort_unstable();
             codes.push(pose.codes);
             counts.push(elements.len());
             jaw.push(pose.jaw);
@@ -166,6 +152,39 @@ impl Stage1Data {
             jaw,
         }
     }
+}
+
+/// The poses and rows of iteration `it`'s batch: `config.batch_poses` distinct (face, pose)
+/// entries of `index`, then for each `config.elements_per_pose` distinct rows (sorted) of
+/// its face (`rows_of(face)` rows; all when 0 or more), all from one stream seeded by
+/// (seed, it) alone. Shared by every model [`ModelTrainer`] trains, so they see the same
+/// poses in the same order for a seed.
+pub fn batch_picks(
+    config: &Stage1Config,
+    it: u64,
+    index: &[(usize, usize)],
+    rows_of: impl Fn(usize) -> usize,
+) -> Vec<(usize, usize, Vec<usize>)> {
+    let mut rng = ChaCha8Rng::seed_from_u64(
+        config.seed ^ 0xba7c_4e55 ^ it.wrapping_mul(0x9e37_79b9_7f4a_7c15),
+    );
+    let b = config.batch_poses.min(index.len());
+    let picks = rand::seq::index::sample(&mut rng, index.len(), b).into_vec();
+    picks
+        .into_iter()
+        .map(|i| {
+            let (f, p) = index[i];
+            let n = rows_of(f);
+            let m = config.elements_per_pose;
+            let mut rows = if m == 0 || m >= n {
+                (0..n).collect()
+            } else {
+                rand::seq::index::sample(&mut rng, n, m).into_vec()
+            };
+            rows.sort_unstable();
+            (f, p, rows)
+        })
+        .collect()
 }
 
 /// One iteration of the loss curve.
@@ -190,40 +209,120 @@ impl LossRow {
     }
 }
 
+/// What [`ModelTrainer`] trains: a few networks with a batch loss on their own data (the
+/// expression/style networks here, the displacement baseline in
+/// [`super::displacement`]). The trainer owns everything else (Adam per network, the
+/// schedule, seeded batches, checkpoints and resume), so both models train alike.
+pub trait TrainableNets: Sized {
+    /// What the loss reads its batches from.
+    type Data;
+    /// Names of the networks in a checkpoint, in [`TrainableNets::networks`] order.
+    fn names() -> &'static [&'static str];
+    /// Fresh networks, initialized deterministically from `seed`.
+    fn init(
+        architecture: Architecture,
+        frame: CanonicalFrame,
+        seed: u64,
+    ) -> Result<Self, GenerativeError>;
+    fn networks(&self) -> Vec<&Mlp<f64>>;
+    fn networks_mut(&mut self) -> Vec<&mut Mlp<f64>>;
+    fn to_checkpoint(&self) -> Checkpoint;
+    fn from_checkpoint(ck: &Checkpoint) -> Result<Self, GenerativeError>;
+    /// The loss of iteration `it`'s batch; **adds** each network's gradient into `grads`.
+    fn batch_loss(
+        &self,
+        data: &Self::Data,
+        config: &Stage1Config,
+        it: u64,
+        ws: &mut LossWorkspace,
+        grads: &mut [Vec<f64>],
+    ) -> Result<LossParts, GenerativeError>;
+}
+
+impl TrainableNets for GenerativeNets {
+    type Data = Stage1Data;
+
+    fn names() -> &'static [&'static str] {
+        &NET_NAMES
+    }
+
+    fn init(
+        architecture: Architecture,
+        frame: CanonicalFrame,
+        seed: u64,
+    ) -> Result<Self, GenerativeError> {
+        GenerativeNets::new(architecture, frame, seed)
+    }
+
+    fn networks(&self) -> Vec<&Mlp<f64>> {
+        self.nets().to_vec()
+    }
+
+    fn networks_mut(&mut self) -> Vec<&mut Mlp<f64>> {
+        self.nets_mut().into_iter().collect()
+    }
+
+    fn to_checkpoint(&self) -> Checkpoint {
+        GenerativeNets::to_checkpoint(self)
+    }
+
+    fn from_checkpoint(ck: &Checkpoint) -> Result<Self, GenerativeError> {
+        GenerativeNets::from_checkpoint(ck)
+    }
+
+    fn batch_loss(
+        &self,
+        data: &Stage1Data,
+        config: &Stage1Config,
+        it: u64,
+        ws: &mut LossWorkspace,
+        grads: &mut [Vec<f64>],
+    ) -> Result<LossParts, GenerativeError> {
+        let batch = data.batch(config, it);
+        let grads: &mut Grads = grads
+            .try_into()
+            .map_err(|_| GenerativeError::Config("gradients of 4 networks expected".into()))?;
+        batch_loss(self, &batch, &config.weights, ws, grads, Par::rayon(0))
+    }
+}
+
 /// The training state: networks, optimizers, next iteration.
-pub struct Trainer<'a> {
-    data: &'a Stage1Data,
+pub struct ModelTrainer<'a, M: TrainableNets> {
+    data: &'a M::Data,
     config: Stage1Config,
     schedule: LrSchedule,
-    nets: GenerativeNets,
+    nets: M,
     adams: Vec<Adam>,
     iteration: u64,
     ws: LossWorkspace,
 }
 
+/// The stage-1 trainer of the expression/style networks.
+pub type Trainer<'a> = ModelTrainer<'a, GenerativeNets>;
+
 const CONFIG_KEY: &str = "stage1_config";
 const ITERATION_KEY: &str = "stage1_iteration";
 
-impl<'a> Trainer<'a> {
+impl<'a, M: TrainableNets> ModelTrainer<'a, M> {
     /// A fresh run: networks initialized from the seed.
     pub fn new(
-        data: &'a Stage1Data,
+        data: &'a M::Data,
         config: Stage1Config,
         frame: CanonicalFrame,
     ) -> Result<Self, GenerativeError> {
-        let nets = GenerativeNets::new(config.architecture, frame, config.seed)?;
+        let nets = M::init(config.architecture, frame, config.seed)?;
         let adams = nets
-            .nets()
+            .networks()
             .iter()
             .map(|n| Adam::new(n.num_params(), AdamConfig::default()))
             .collect::<Result<_, _>>()?;
         Self::assemble(data, config, nets, adams, 0)
     }
 
-    /// Continues the run saved in `ck` (by [`Trainer::checkpoint`]); the configuration must
-    /// be the saved one.
+    /// Continues the run saved in `ck` (by [`ModelTrainer::checkpoint`]); the configuration
+    /// must be the saved one.
     pub fn resume(
-        data: &'a Stage1Data,
+        data: &'a M::Data,
         config: Stage1Config,
         ck: &Checkpoint,
     ) -> Result<Self, GenerativeError> {
@@ -246,8 +345,8 @@ impl<'a> Trainer<'a> {
             .get(ITERATION_KEY)
             .and_then(|s| s.parse().ok())
             .ok_or_else(|| GenerativeError::Checkpoint("no iteration in the checkpoint".into()))?;
-        let nets = GenerativeNets::from_checkpoint(ck)?;
-        let adams = NET_NAMES
+        let nets = M::from_checkpoint(ck)?;
+        let adams = M::names()
             .iter()
             .map(|n| {
                 let hex = meta.get(&format!("adam_{n}")).ok_or_else(|| {
@@ -262,9 +361,9 @@ impl<'a> Trainer<'a> {
     }
 
     fn assemble(
-        data: &'a Stage1Data,
+        data: &'a M::Data,
         config: Stage1Config,
-        nets: GenerativeNets,
+        nets: M,
         adams: Vec<Adam>,
         iteration: u64,
     ) -> Result<Self, GenerativeError> {
@@ -275,7 +374,7 @@ impl<'a> Trainer<'a> {
         if !(w.lambda_act >= 0.0 && w.lambda_lip >= 0.0 && w.jaw_lever_cm > 0.0) {
             return Err(GenerativeError::Config(format!("loss weights {w:?}")));
         }
-        Ok(Trainer {
+        Ok(ModelTrainer {
             data,
             schedule: LrSchedule::linear_decay(
                 config.learning_rate,
@@ -299,34 +398,33 @@ impl<'a> Trainer<'a> {
         self.iteration >= self.config.iterations
     }
 
-    pub fn nets(&self) -> &GenerativeNets {
+    pub fn nets(&self) -> &M {
         &self.nets
     }
 
-    pub fn into_nets(self) -> GenerativeNets {
+    pub fn into_nets(self) -> M {
         self.nets
     }
 
     /// Runs one iteration.
     pub fn step(&mut self) -> Result<LossRow, GenerativeError> {
         let it = self.iteration;
-        let batch = self.data.batch(&self.config, it);
-        let mut grads = zero_grads(&self.nets);
-        let parts = batch_loss(
-            &self.nets,
-            &batch,
-            &self.config.weights,
-            &mut self.ws,
-            &mut grads,
-            Par::rayon(0),
-        )?;
+        let mut grads: Vec<Vec<f64>> = self
+            .nets
+            .networks()
+            .iter()
+            .map(|n| vec![0.0; n.num_params()])
+            .collect();
+        let parts = self
+            .nets
+            .batch_loss(self.data, &self.config, it, &mut self.ws, &mut grads)?;
         if !parts.total.is_finite() || grads.iter().flatten().any(|g| !g.is_finite()) {
             return Err(GenerativeError::Diverged(it));
         }
         let lr = self.schedule.lr_at(it);
         for ((net, adam), g) in self
             .nets
-            .nets_mut()
+            .networks_mut()
             .into_iter()
             .zip(&mut self.adams)
             .zip(&grads)
@@ -346,7 +444,7 @@ impl<'a> Trainer<'a> {
         let mut ck = self.nets.to_checkpoint();
         let meta = ck.metadata_mut();
         // Optimizer states as exact bits (see `nets::to_hex`), not the kit's JSON numbers.
-        for (name, adam) in NET_NAMES.iter().zip(&self.adams) {
+        for (name, adam) in M::names().iter().zip(&self.adams) {
             meta.insert(format!("adam_{name}"), to_hex(adam));
         }
         meta.insert(
@@ -363,9 +461,19 @@ pub fn train_stage1(
     data: &Stage1Data,
     config: Stage1Config,
     frame: CanonicalFrame,
-    mut progress: impl FnMut(&LossRow),
+    progress: impl FnMut(&LossRow),
 ) -> Result<(GenerativeNets, Vec<LossRow>), GenerativeError> {
-    let mut t = Trainer::new(data, config, frame)?;
+    train_model::<GenerativeNets>(data, config, frame, progress)
+}
+
+/// Trains any [`TrainableNets`] from scratch to the end; `progress` sees every row.
+pub fn train_model<M: TrainableNets>(
+    data: &M::Data,
+    config: Stage1Config,
+    frame: CanonicalFrame,
+    mut progress: impl FnMut(&LossRow),
+) -> Result<(M, Vec<LossRow>), GenerativeError> {
+    let mut t = ModelTrainer::<M>::new(data, config, frame)?;
     let mut rows = Vec::new();
     while !t.done() {
         let row = t.step()?;
