@@ -8,8 +8,9 @@
 //!   barrier's stiffness is in every step. `K` lives on the few simulation vertices the active
 //!   pairs touch (`a` of them), so the prefactored `L` is kept and `K` enters as a low-rank
 //!   update (Woodbury): `(L + UKUᵀ)⁻¹ = L⁻¹ − L⁻¹U·(I + K·G)⁻¹·K·UᵀL⁻¹` with
-//!   `G = UᵀL⁻¹U`, read from the block of `L⁻¹` over the contact region, computed once per
-//!   simulator. Each step costs two solves with `L` and a dense `3a × 3a` LU.
+//!   `G = UᵀL⁻¹U`, read from columns of `L⁻¹` computed once per simulator (with the volume
+//!   barrier's terms, in [`super::low_rank`]). Each step costs two solves with `L` and a
+//!   dense `3a × 3a` LU.
 //!   [`ContactStep::Refactor`] instead factors the full `3n × 3n` matrix `L⊗I₃ + K` at every
 //!   step: `facesim bench contact` measures both (the low-rank update is the default because
 //!   it is faster).
