@@ -269,7 +269,10 @@ mod tests {
             eprintln!("{r:?}");
             assert_eq!(r.non_finite, 0, "{r:?}");
             assert_eq!(r.other_errors, 0, "{r:?}");
-            assert_eq!(r.inverted, 0, "the volume barrier lets no element fold: {r:?}");
+            assert_eq!(
+                r.inverted, 0,
+                "the volume barrier lets no element fold: {r:?}"
+            );
             assert!(r.max_iterations <= settings.max_iterations);
             assert_eq!(
                 r.converged + r.unconverged + r.inverted + r.intersecting,

@@ -252,9 +252,15 @@ impl EditorApp {
                     f.stats.solve_ms, f.stats.total_ms
                 ));
                 ui.label(match f.stats.contacts {
+                    _ if f.stats.contact_skipped => {
+                        "contact not needed (lips apart: skipped)".into()
+                    }
                     Some(c) => format!("contact pairs {c}"),
                     None => "contact off".into(),
                 });
+                if f.stats.reused {
+                    ui.label("same inputs: the last solve reused");
+                }
                 if f.error.is_none() && f.stats.termination != Termination::Converged {
                     ui.label(
                         RichText::new(format!(
