@@ -203,7 +203,8 @@ impl LowRankInverse {
         let vertices = curvature.vertices();
         let inverse = columns.get(global, &vertices);
         let slot: HashMap<u32, usize> = vertices.iter().enumerate().map(|(i, &v)| (v, i)).collect();
-        // Each column with its vertices' cached columns of L⁻¹ looked up once.
+        // Each column's entries paired with their vertex's column of L⁻¹, looked up once:
+        // (UᵀL⁻¹U)ₚq = Σ over entries (v, a) of p and (w, b) of q of (L⁻¹)ᵥw·⟨a, b⟩.
         let cols: Vec<Vec<(&[f64], Vector3<f64>)>> = curvature
             .columns
             .iter()
@@ -215,7 +216,7 @@ impl LowRankInverse {
             for q in 0..=p {
                 let mut sum = 0.0;
                 for &(column, a) in &cols[p] {
-                    for (&(w, b), _) in curvature.columns[q].iter().zip(&cols[q]) {
+                    for &(w, b) in &curvature.columns[q] {
                         sum += column[w as usize] * a.dot(&b);
                     }
                 }
