@@ -150,9 +150,13 @@ pub struct GenerativeNets {
 
 /// Names of the networks in a [`Checkpoint`].
 pub const NET_NAMES: [&str; 4] = ["expression", "style", "actuation", "jaw"];
-const KIND_KEY: &str = "kind";
-const KIND: &str = "facesim-generative";
-const VERSION_KEY: &str = "generative_version";
+const GENERATIVE_FILE: NetFile = NetFile {
+    kind: "facesim-generative",
+    what: "generative-model",
+    version_key: "generative_version",
+    version: GENERATIVE_VERSION,
+    names: NET_NAMES,
+};
 /// Bump when the meaning of the stored networks changes.
 pub const GENERATIVE_VERSION: u32 = 1;
 
@@ -205,89 +209,32 @@ impl GenerativeNets {
 
     /// The modulation tanh(z) of each code (B × code_dim).
     pub fn modulation(&self, codes: &[Codes]) -> Result<Mat<f64>, GenerativeError> {
-        let (x, s) = Self::inputs(codes);
-        let e = self.expression.eval(x.as_ref(), None)?;
-        let s = self.style.eval(s.as_ref(), None)?;
-        let de = self.architecture.expression_dim;
-        Ok(Mat::from_fn(
-            codes.len(),
-            self.architecture.code_dim(),
-            |b, k| (if k < de { e[(b, k)] } else { s[(b, k - de)] }).tanh(),
-        ))
+        modulation(&self.expression, &self.style, &self.architecture, codes)
     }
 
     /// The jaw `[θ; t]` for a modulation row.
     pub fn jaw_params(&self, u: &[f64]) -> Result<[f64; 6], GenerativeError> {
-        let m = Mat::from_fn(1, u.len(), |_, k| u[k]);
-        let y = self.jaw.eval(m.as_ref(), None)?;
-        Ok([0, 1, 2, 3, 4, 5].map(|k| y[(0, k)]))
+        jaw_params(&self.jaw, u)
     }
 
-    /// The networks, their architecture and frame in a checkpoint (plus `extra` metadata).
+    /// The networks, their architecture and frame in a checkpoint.
     pub fn to_checkpoint(&self) -> Checkpoint {
-        let mut ck = Checkpoint::new();
-        for (name, net) in NET_NAMES.iter().zip(self.nets()) {
-            ck.insert_network(name, net);
-        }
-        let meta = ck.metadata_mut();
-        meta.insert(KIND_KEY.into(), KIND.into());
-        meta.insert(VERSION_KEY.into(), GENERATIVE_VERSION.to_string());
-        meta.insert(
-            "architecture".into(),
-            serde_json::to_string(&self.architecture).expect("serializable"),
-        );
-        meta.insert("frame".into(), to_hex(&self.frame));
-        ck
+        GENERATIVE_FILE.write(self.nets(), &self.architecture, &self.frame)
     }
 
     /// The networks of a checkpoint written by [`GenerativeNets::to_checkpoint`]; checks the
     /// kind, version and that the networks have the architecture's shapes.
     pub fn from_checkpoint(ck: &Checkpoint) -> Result<Self, GenerativeError> {
-        let meta = ck.metadata();
-        let bad = |m: String| GenerativeError::Checkpoint(m);
-        if meta.get(KIND_KEY).map(String::as_str) != Some(KIND) {
-            return Err(bad(format!(
-                "not a generative-model file (kind {:?})",
-                meta.get(KIND_KEY)
-            )));
-        }
-        let version = meta.get(VERSION_KEY).cloned().unwrap_or_default();
-        if version != GENERATIVE_VERSION.to_string() {
-            return Err(bad(format!(
-                "generative-model version {version}, this build reads {GENERATIVE_VERSION}"
-            )));
-        }
-        let parse = |key: &str| {
-            meta.get(key)
-                .ok_or_else(|| bad(format!("missing {key}")))
-                .map(String::as_str)
-        };
-        let architecture: Architecture = serde_json::from_str(parse("architecture")?)
-            .map_err(|e| bad(format!("architecture: {e}")))?;
-        let frame: CanonicalFrame =
-            from_hex(parse("frame")?).map_err(|e| bad(format!("frame: {e}")))?;
-        let nets = GenerativeNets {
-            expression: ck.network("expression")?,
-            style: ck.network("style")?,
-            actuation: ck.network("actuation")?,
-            jaw: ck.network("jaw")?,
+        let ([expression, style, actuation, jaw], architecture, frame) =
+            GENERATIVE_FILE.read(ck, Architecture::actuation_spec)?;
+        Ok(GenerativeNets {
+            expression,
+            style,
+            actuation,
+            jaw,
             architecture,
             frame,
-        };
-        let specs = [
-            architecture.expression_spec(),
-            architecture.style_spec(),
-            architecture.actuation_spec(),
-            architecture.jaw_spec(),
-        ];
-        for ((name, net), spec) in NET_NAMES.iter().zip(nets.nets()).zip(specs) {
-            if *net.spec() != spec {
-                return Err(bad(format!(
-                    "network {name} does not match the stored architecture"
-                )));
-            }
-        }
-        Ok(nets)
+        })
     }
 
     pub fn save(&self, path: &std::path::Path) -> Result<(), GenerativeError> {
@@ -320,4 +267,122 @@ pub(crate) fn from_hex<T: serde::de::DeserializeOwned>(hex: &str) -> Result<T, S
         .map(|i| u8::from_str_radix(&hex[i..i + 2], 16).map_err(|e| e.to_string()))
         .collect::<Result<Vec<u8>, String>>()?;
     postcard::from_bytes(&bytes).map_err(|e| e.to_string())
+}
+
+/// The modulation tanh(z) of each code (B × code_dim): the two encoders' outputs side by side
+/// (shared by the physics networks and the displacement baseline).
+pub(crate) fn modulation(
+    expression: &Mlp<f64>,
+    style: &Mlp<f64>,
+    architecture: &Architecture,
+    codes: &[Codes],
+) -> Result<Mat<f64>, GenerativeError> {
+    let (x, s) = GenerativeNets::inputs(codes);
+    let e = expression.eval(x.as_ref(), None)?;
+    let s = style.eval(s.as_ref(), None)?;
+    let de = architecture.expression_dim;
+    Ok(Mat::from_fn(
+        codes.len(),
+        architecture.code_dim(),
+        |b, k| (if k < de { e[(b, k)] } else { s[(b, k - de)] }).tanh(),
+    ))
+}
+
+/// N_B's jaw `[θ; t]` for a modulation row.
+pub(crate) fn jaw_params(jaw: &Mlp<f64>, u: &[f64]) -> Result<[f64; 6], GenerativeError> {
+    let m = Mat::from_fn(1, u.len(), |_, k| u[k]);
+    let y = jaw.eval(m.as_ref(), None)?;
+    Ok([0, 1, 2, 3, 4, 5].map(|k| y[(0, k)]))
+}
+
+/// The file form of a code-driven model (two encoders, a field network over canonical
+/// positions, N_B): its kind and version under their keys, the architecture and frame as
+/// metadata, the four networks by name. The physics networks and the displacement baseline
+/// differ only in these constants and the field network's shape.
+pub(crate) struct NetFile {
+    pub(crate) kind: &'static str,
+    /// How errors name the file.
+    pub(crate) what: &'static str,
+    pub(crate) version_key: &'static str,
+    pub(crate) version: u32,
+    /// Expression encoder, style encoder, field network, jaw.
+    pub(crate) names: [&'static str; 4],
+}
+
+const KIND_KEY: &str = "kind";
+
+impl NetFile {
+    pub(crate) fn write(
+        &self,
+        nets: [&Mlp<f64>; 4],
+        architecture: &Architecture,
+        frame: &CanonicalFrame,
+    ) -> Checkpoint {
+        let mut ck = Checkpoint::new();
+        for (name, net) in self.names.iter().zip(nets) {
+            ck.insert_network(name, net);
+        }
+        let meta = ck.metadata_mut();
+        meta.insert(KIND_KEY.into(), self.kind.into());
+        meta.insert(self.version_key.into(), self.version.to_string());
+        meta.insert(
+            "architecture".into(),
+            serde_json::to_string(architecture).expect("serializable"),
+        );
+        meta.insert("frame".into(), to_hex(frame));
+        ck
+    }
+
+    /// The four networks, architecture and frame of a checkpoint [`NetFile::write`] wrote;
+    /// checks the kind, the version and that every network has the architecture's shape
+    /// (`field_spec`: the field network's).
+    pub(crate) fn read(
+        &self,
+        ck: &Checkpoint,
+        field_spec: fn(&Architecture) -> MlpSpec,
+    ) -> Result<([Mlp<f64>; 4], Architecture, CanonicalFrame), GenerativeError> {
+        let meta = ck.metadata();
+        let bad = |m: String| GenerativeError::Checkpoint(m);
+        if meta.get(KIND_KEY).map(String::as_str) != Some(self.kind) {
+            return Err(bad(format!(
+                "not a {} file (kind {:?})",
+                self.what,
+                meta.get(KIND_KEY)
+            )));
+        }
+        let version = meta.get(self.version_key).cloned().unwrap_or_default();
+        if version != self.version.to_string() {
+            return Err(bad(format!(
+                "{} version {version}, this build reads {}",
+                self.what, self.version
+            )));
+        }
+        let parse = |key: &str| {
+            meta.get(key)
+                .ok_or_else(|| bad(format!("missing {key}")))
+                .map(String::as_str)
+        };
+        let architecture: Architecture = serde_json::from_str(parse("architecture")?)
+            .map_err(|e| bad(format!("architecture: {e}")))?;
+        let frame: CanonicalFrame =
+            from_hex(parse("frame")?).map_err(|e| bad(format!("frame: {e}")))?;
+        let specs = [
+            architecture.expression_spec(),
+            architecture.style_spec(),
+            field_spec(&architecture),
+            architecture.jaw_spec(),
+        ];
+        let mut nets = Vec::with_capacity(4);
+        for (name, spec) in self.names.iter().zip(specs) {
+            let net: Mlp<f64> = ck.network(name)?;
+            if *net.spec() != spec {
+                return Err(bad(format!(
+                    "network {name} does not match the stored architecture"
+                )));
+            }
+            nets.push(net);
+        }
+        let nets: [Mlp<f64>; 4] = nets.try_into().expect("four names");
+        Ok((nets, architecture, frame))
+    }
 }

@@ -40,7 +40,7 @@ use faer::{Mat, Par};
 
 use super::GenerativeError;
 use super::loss::{LossParts, LossWeights, LossWorkspace, jaw_term};
-use super::nets::{Architecture, CanonicalFrame, GenerativeNets, from_hex, to_hex};
+use super::nets::{Architecture, CanonicalFrame, GenerativeNets, NetFile, jaw_params, modulation};
 use super::train::{Stage1Config, TrainableNets};
 use crate::drive::Codes;
 use crate::nn::{Checkpoint, CodeBatch, Mlp, Pass};
@@ -53,9 +53,13 @@ pub const SAMPLE_DISPLACEMENT: &str = "displacement.nn";
 
 /// Names of the networks in a [`Checkpoint`].
 pub const DISPLACEMENT_NET_NAMES: [&str; 4] = ["expression", "style", "displacement", "jaw"];
-const KIND_KEY: &str = "kind";
-const KIND: &str = "facesim-displacement";
-const VERSION_KEY: &str = "displacement_version";
+const DISPLACEMENT_FILE: NetFile = NetFile {
+    kind: "facesim-displacement",
+    what: "displacement-baseline",
+    version_key: "displacement_version",
+    version: DISPLACEMENT_VERSION,
+    names: DISPLACEMENT_NET_NAMES,
+};
 /// Bump when the meaning of the stored networks changes.
 pub const DISPLACEMENT_VERSION: u32 = 1;
 
@@ -107,88 +111,31 @@ impl DisplacementNets {
 
     /// The jaw `[θ; t]` for a modulation row.
     pub fn jaw_params(&self, u: &[f64]) -> Result<[f64; 6], GenerativeError> {
-        let m = Mat::from_fn(1, u.len(), |_, k| u[k]);
-        let y = self.jaw.eval(m.as_ref(), None)?;
-        Ok([0, 1, 2, 3, 4, 5].map(|k| y[(0, k)]))
+        jaw_params(&self.jaw, u)
     }
 
     /// The modulation tanh(z) of each code (B × code_dim).
     pub fn modulation(&self, codes: &[Codes]) -> Result<Mat<f64>, GenerativeError> {
-        let (x, s) = GenerativeNets::inputs(codes);
-        let e = self.expression.eval(x.as_ref(), None)?;
-        let s = self.style.eval(s.as_ref(), None)?;
-        let de = self.architecture.expression_dim;
-        Ok(Mat::from_fn(
-            codes.len(),
-            self.architecture.code_dim(),
-            |b, k| (if k < de { e[(b, k)] } else { s[(b, k - de)] }).tanh(),
-        ))
+        modulation(&self.expression, &self.style, &self.architecture, codes)
     }
 
     pub fn to_checkpoint(&self) -> Checkpoint {
-        let mut ck = Checkpoint::new();
-        for (name, net) in DISPLACEMENT_NET_NAMES.iter().zip(self.nets()) {
-            ck.insert_network(name, net);
-        }
-        let meta = ck.metadata_mut();
-        meta.insert(KIND_KEY.into(), KIND.into());
-        meta.insert(VERSION_KEY.into(), DISPLACEMENT_VERSION.to_string());
-        meta.insert(
-            "architecture".into(),
-            serde_json::to_string(&self.architecture).expect("serializable"),
-        );
-        meta.insert("frame".into(), to_hex(&self.frame));
-        ck
+        DISPLACEMENT_FILE.write(self.nets(), &self.architecture, &self.frame)
     }
 
     /// The networks of a checkpoint written by [`DisplacementNets::to_checkpoint`]; checks
     /// the kind (a physics `generative.nn` is refused), version and shapes.
     pub fn from_checkpoint(ck: &Checkpoint) -> Result<Self, GenerativeError> {
-        let meta = ck.metadata();
-        let bad = |m: String| GenerativeError::Checkpoint(m);
-        if meta.get(KIND_KEY).map(String::as_str) != Some(KIND) {
-            return Err(bad(format!(
-                "not a displacement-baseline file (kind {:?})",
-                meta.get(KIND_KEY)
-            )));
-        }
-        let version = meta.get(VERSION_KEY).cloned().unwrap_or_default();
-        if version != DISPLACEMENT_VERSION.to_string() {
-            return Err(bad(format!(
-                "displacement-baseline version {version}, this build reads {DISPLACEMENT_VERSION}"
-            )));
-        }
-        let get = |key: &str| {
-            meta.get(key)
-                .ok_or_else(|| bad(format!("missing {key}")))
-                .map(String::as_str)
-        };
-        let architecture: Architecture = serde_json::from_str(get("architecture")?)
-            .map_err(|e| bad(format!("architecture: {e}")))?;
-        let frame: CanonicalFrame =
-            from_hex(get("frame")?).map_err(|e| bad(format!("frame: {e}")))?;
-        let nets = DisplacementNets {
-            expression: ck.network("expression")?,
-            style: ck.network("style")?,
-            displacement: ck.network("displacement")?,
-            jaw: ck.network("jaw")?,
+        let ([expression, style, displacement, jaw], architecture, frame) =
+            DISPLACEMENT_FILE.read(ck, Architecture::displacement_spec)?;
+        Ok(DisplacementNets {
+            expression,
+            style,
+            displacement,
+            jaw,
             architecture,
             frame,
-        };
-        let specs = [
-            architecture.expression_spec(),
-            architecture.style_spec(),
-            architecture.displacement_spec(),
-            architecture.jaw_spec(),
-        ];
-        for ((name, net), spec) in DISPLACEMENT_NET_NAMES.iter().zip(nets.nets()).zip(specs) {
-            if *net.spec() != spec {
-                return Err(bad(format!(
-                    "network {name} does not match the stored architecture"
-                )));
-            }
-        }
-        Ok(nets)
+        })
     }
 
     pub fn save(&self, path: &std::path::Path) -> Result<(), GenerativeError> {
