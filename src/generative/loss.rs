@@ -26,7 +26,7 @@ use faer::{Mat, Par};
 use serde::{Deserialize, Serialize};
 
 use super::GenerativeError;
-use super::nets::GenerativeNets;
+use super::nets::{Architecture, GenerativeNets};
 use crate::drive::Codes;
 use crate::nn::{ChunkedGradient, CodeBatch, Mlp, Pass, Tape};
 
@@ -140,27 +140,18 @@ pub fn batch_loss(
         )));
     }
     let arch = &nets.architecture;
-    let (de, cd) = (arch.expression_dim, arch.code_dim());
     let [tape_e, tape_s, tape_b] = &mut ws.tapes;
 
     // Encoders → u = tanh(z).
-    let (xe, xs) = GenerativeNets::inputs(&batch.codes);
-    nets.expression
-        .forward(xe.as_ref(), None, Pass::Gradient, tape_e, Par::Seq)?;
-    nets.style
-        .forward(xs.as_ref(), None, Pass::Gradient, tape_s, Par::Seq)?;
-    let (e, s) = (
-        tape_e.output().expect("outputs"),
-        tape_s.output().expect("outputs"),
-    );
-    let u = Mat::from_fn(b_count, cd, |b, k| {
-        (if k < de { e[(b, k)] } else { s[(b, k - de)] }).tanh()
-    });
-    let u_rows: Vec<f64> = (0..b_count)
-        .flat_map(|b| (0..cd).map(move |k| (b, k)))
-        .map(|(b, k)| u[(b, k)])
-        .collect();
-    let codes = CodeBatch::segments(cd, u_rows, batch.counts.clone())?;
+    let (u, codes) = encode(
+        &nets.expression,
+        &nets.style,
+        arch,
+        &batch.codes,
+        &batch.counts,
+        tape_e,
+        tape_s,
+    )?;
 
     // N_A: fit and regularizer terms.
     let inv_r = 1.0 / rows as f64;
@@ -212,13 +203,15 @@ pub fn batch_loss(
     )?;
 
     // tanh and the encoders.
-    let dz = |b: usize, k: usize| du[b * cd + k] * (1.0 - u[(b, k)] * u[(b, k)]);
-    let dye = Mat::from_fn(b_count, de, &dz);
-    let dys = Mat::from_fn(b_count, cd - de, |b, k| dz(b, de + k));
-    nets.expression
-        .backward(tape_e, Some(dye.as_ref()), None, grad_e, Par::Seq)?;
-    nets.style
-        .backward(tape_s, Some(dys.as_ref()), None, grad_s, Par::Seq)?;
+    encode_backward(
+        &nets.expression,
+        &nets.style,
+        arch,
+        &u,
+        &du,
+        [tape_e, tape_s],
+        [grad_e, grad_s],
+    )?;
 
     // Lipschitz bounds of N_A.
     let lip_weighted = nets
@@ -232,6 +225,57 @@ pub fn batch_loss(
         lip,
         total: fit + jaw + lambda_act * act + lip_weighted,
     })
+}
+
+/// The encoders' forward pass with gradient tapes: the modulation `u = tanh(z)`
+/// (B × code_dim) and its rows as a code batch, code `b` for the next `counts[b]` points.
+/// Shared by the physics networks' and the displacement baseline's losses.
+pub(crate) fn encode(
+    expression: &Mlp<f64>,
+    style: &Mlp<f64>,
+    arch: &Architecture,
+    codes: &[Codes],
+    counts: &[usize],
+    tape_e: &mut Tape<f64>,
+    tape_s: &mut Tape<f64>,
+) -> Result<(Mat<f64>, CodeBatch<f64>), GenerativeError> {
+    let (de, cd) = (arch.expression_dim, arch.code_dim());
+    let (xe, xs) = GenerativeNets::inputs(codes);
+    expression.forward(xe.as_ref(), None, Pass::Gradient, tape_e, Par::Seq)?;
+    style.forward(xs.as_ref(), None, Pass::Gradient, tape_s, Par::Seq)?;
+    let (e, s) = (
+        tape_e.output().expect("outputs"),
+        tape_s.output().expect("outputs"),
+    );
+    let u = Mat::from_fn(codes.len(), cd, |b, k| {
+        (if k < de { e[(b, k)] } else { s[(b, k - de)] }).tanh()
+    });
+    let u_rows: Vec<f64> = (0..codes.len())
+        .flat_map(|b| (0..cd).map(move |k| (b, k)))
+        .map(|(b, k)| u[(b, k)])
+        .collect();
+    let batch = CodeBatch::segments(cd, u_rows, counts.to_vec())?;
+    Ok((u, batch))
+}
+
+/// Back through tanh and the encoders of [`encode`] from `du` (`∂L/∂u`, row-major
+/// B × code_dim); **adds** their parameter gradients into `grads`.
+pub(crate) fn encode_backward(
+    expression: &Mlp<f64>,
+    style: &Mlp<f64>,
+    arch: &Architecture,
+    u: &Mat<f64>,
+    du: &[f64],
+    [tape_e, tape_s]: [&mut Tape<f64>; 2],
+    [grad_e, grad_s]: [&mut Vec<f64>; 2],
+) -> Result<(), GenerativeError> {
+    let (de, cd) = (arch.expression_dim, arch.code_dim());
+    let dz = |b: usize, k: usize| du[b * cd + k] * (1.0 - u[(b, k)] * u[(b, k)]);
+    let dye = Mat::from_fn(u.nrows(), de, &dz);
+    let dys = Mat::from_fn(u.nrows(), cd - de, |b, k| dz(b, de + k));
+    expression.backward(tape_e, Some(dye.as_ref()), None, grad_e, Par::Seq)?;
+    style.backward(tape_s, Some(dys.as_ref()), None, grad_s, Par::Seq)?;
+    Ok(())
 }
 
 /// `L_jaw` of N_B on the modulation rows `u` (B × code_dim) against the fitted jaws; **adds**

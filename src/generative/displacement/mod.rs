@@ -39,11 +39,11 @@ use std::sync::Mutex;
 use faer::{Mat, Par};
 
 use super::GenerativeError;
-use super::loss::{LossParts, LossWeights, LossWorkspace, jaw_term};
+use super::loss::{LossParts, LossWeights, LossWorkspace, encode, encode_backward, jaw_term};
 use super::nets::{Architecture, CanonicalFrame, GenerativeNets, NetFile, jaw_params, modulation};
 use super::train::{Stage1Config, TrainableNets};
 use crate::drive::Codes;
-use crate::nn::{Checkpoint, CodeBatch, Mlp, Pass};
+use crate::nn::{Checkpoint, Mlp, Pass};
 
 pub use data::DisplacementData;
 pub use face::DisplacementFace;
@@ -179,29 +179,17 @@ impl DisplacementNets {
                 grads.len()
             )));
         }
-        let (de, cd) = (
-            self.architecture.expression_dim,
-            self.architecture.code_dim(),
-        );
         let lambda_lip = w.lambda_lip;
         let [tape_e, tape_s, _] = ws.tapes_mut();
-        let (xe, xs) = GenerativeNets::inputs(&batch.codes);
-        self.expression
-            .forward(xe.as_ref(), None, Pass::Gradient, tape_e, Par::Seq)?;
-        self.style
-            .forward(xs.as_ref(), None, Pass::Gradient, tape_s, Par::Seq)?;
-        let (e, s) = (
-            tape_e.output().expect("outputs"),
-            tape_s.output().expect("outputs"),
-        );
-        let u = Mat::from_fn(b_count, cd, |b, k| {
-            (if k < de { e[(b, k)] } else { s[(b, k - de)] }).tanh()
-        });
-        let u_rows: Vec<f64> = (0..b_count)
-            .flat_map(|b| (0..cd).map(move |k| (b, k)))
-            .map(|(b, k)| u[(b, k)])
-            .collect();
-        let codes = CodeBatch::segments(cd, u_rows, batch.counts.clone())?;
+        let (u, codes) = encode(
+            &self.expression,
+            &self.style,
+            &self.architecture,
+            &batch.codes,
+            &batch.counts,
+            tape_e,
+            tape_s,
+        )?;
 
         let inv_r = 1.0 / rows as f64;
         let parts: Mutex<Vec<(usize, f64)>> = Mutex::new(Vec::new());
@@ -246,13 +234,15 @@ impl DisplacementNets {
             grad_b,
             &mut du,
         )?;
-        let dz = |b: usize, k: usize| du[b * cd + k] * (1.0 - u[(b, k)] * u[(b, k)]);
-        let dye = Mat::from_fn(b_count, de, &dz);
-        let dys = Mat::from_fn(b_count, cd - de, |b, k| dz(b, de + k));
-        self.expression
-            .backward(tape_e, Some(dye.as_ref()), None, grad_e, Par::Seq)?;
-        self.style
-            .backward(tape_s, Some(dys.as_ref()), None, grad_s, Par::Seq)?;
+        encode_backward(
+            &self.expression,
+            &self.style,
+            &self.architecture,
+            &u,
+            &du,
+            [tape_e, tape_s],
+            [grad_e, grad_s],
+        )?;
         let lip_weighted = self
             .displacement
             .lipschitz_loss(lambda_lip, Some(grad_d.as_mut_slice()))?;
