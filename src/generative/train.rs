@@ -114,14 +114,7 @@ impl Stage1Data {
                 poses: samples,
             });
         }
-        let index: Vec<(usize, usize)> = out
-            .iter()
-            .enumerate()
-            .flat_map(|(f, d)| (0..d.poses.len()).map(move |p| (f, p)))
-            .collect();
-        if index.is_empty() {
-            return Err(GenerativeError::Config("no training poses".into()));
-        }
+        let index = pose_index(out.iter().map(|d| d.poses.len()))?;
         Ok(Stage1Data { faces: out, index })
     }
 
@@ -152,6 +145,21 @@ impl Stage1Data {
             jaw,
         }
     }
+}
+
+/// `(face, pose)` for every pose of faces with `pose_counts` poses, in order (the list
+/// [`batch_picks`] draws from); an error when there is none.
+pub(crate) fn pose_index(
+    pose_counts: impl Iterator<Item = usize>,
+) -> Result<Vec<(usize, usize)>, GenerativeError> {
+    let index: Vec<(usize, usize)> = pose_counts
+        .enumerate()
+        .flat_map(|(f, n)| (0..n).map(move |p| (f, p)))
+        .collect();
+    if index.is_empty() {
+        return Err(GenerativeError::Config("no training poses".into()));
+    }
+    Ok(index)
 }
 
 /// The poses and rows of iteration `it`'s batch: `config.batch_poses` distinct (face, pose)

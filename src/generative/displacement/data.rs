@@ -10,7 +10,7 @@ use crate::drive::Codes;
 use crate::generative::GenerativeError;
 use crate::generative::data::FacePoses;
 use crate::generative::face::FaceWarp;
-use crate::generative::train::{Stage1Config, batch_picks};
+use crate::generative::train::{Stage1Config, batch_picks, pose_index};
 
 /// One pose: codes and canonical displacement per vertex (cm).
 #[derive(Clone, Debug)]
@@ -90,14 +90,7 @@ impl DisplacementData {
                 poses: samples,
             });
         }
-        let index: Vec<(usize, usize)> = out
-            .iter()
-            .enumerate()
-            .flat_map(|(f, d)| (0..d.poses.len()).map(move |p| (f, p)))
-            .collect();
-        if index.is_empty() {
-            return Err(GenerativeError::Config("no training poses".into()));
-        }
+        let index = pose_index(out.iter().map(|d| d.poses.len()))?;
         Ok(DisplacementData { faces: out, index })
     }
 
