@@ -77,22 +77,18 @@ impl Architecture {
     }
 
     pub fn actuation_spec(&self) -> MlpSpec {
-        let mut spec = MlpSpec::new(3)
-            .with_code_dim(self.code_dim())
-            .layer(LayerSpec::siren_first(self.actuation_width, self.omega0));
-        for _ in 0..self.actuation_gelu_layers {
-            spec = spec.layer(
-                LayerSpec::gelu(self.actuation_width)
-                    .lipschitz()
-                    .with_code(),
-            );
-        }
-        spec.layer(LayerSpec::linear(6))
+        self.field_spec(6)
     }
 
-    /// The displacement baseline's network ([`super::displacement`]): N_A's shape (SIREN
-    /// first layer on X̂, modulated Lipschitz GeLU layers) with 3 outputs, a displacement (cm).
+    /// The displacement baseline's network ([`super::displacement`]): N_A's shape with 3
+    /// outputs, a displacement (cm).
     pub fn displacement_spec(&self) -> MlpSpec {
+        self.field_spec(3)
+    }
+
+    /// A network over canonical positions X̂ modulated by the code: SIREN first layer, then
+    /// Lipschitz GeLU layers that take the code, then `outputs` linear outputs.
+    fn field_spec(&self, outputs: usize) -> MlpSpec {
         let mut spec = MlpSpec::new(3)
             .with_code_dim(self.code_dim())
             .layer(LayerSpec::siren_first(self.actuation_width, self.omega0));
@@ -103,7 +99,7 @@ impl Architecture {
                     .with_code(),
             );
         }
-        spec.layer(LayerSpec::linear(3))
+        spec.layer(LayerSpec::linear(outputs))
     }
 
     pub fn jaw_spec(&self) -> MlpSpec {
