@@ -26,6 +26,8 @@ pub struct LocalStep {
     pub energy: f64,
     /// `det F`: the element's volume ratio (≤ 0 means inverted).
     pub volume_ratio: f64,
+    /// `F` itself, kept for the step limit and the barrier's curvature at this state.
+    pub deformation: Matrix3<f64>,
 }
 
 /// Volume ratio below which the barrier acts (`Ĵ`): 90 % compression. (0.05 converges
@@ -183,6 +185,7 @@ pub fn local_step(
         stress,
         energy,
         volume_ratio: j,
+        deformation: *f,
     }
 }
 

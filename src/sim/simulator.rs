@@ -330,6 +330,7 @@ impl Simulator {
             stress: Matrix3::zeros(),
             energy: 0.0,
             volume_ratio: 1.0,
+            deformation: Matrix3::identity(),
         };
         SimState {
             x,
@@ -422,29 +423,29 @@ impl Simulator {
     }
 
     /// The longest fraction of the step `x → x + d` that leaves every element at least
-    /// [`STEP_VOLUME_KEPT`] of its volume (1 if the whole step does).
-    pub(crate) fn volume_step_limit(&self, x: &[f64], d: &[f64]) -> f64 {
+    /// [`STEP_VOLUME_KEPT`] of its volume (1 if the whole step does); `steps` are the local
+    /// steps at `x` (their `F`).
+    pub(crate) fn volume_step_limit(&self, steps: &[LocalStep], d: &[f64]) -> f64 {
         (0..self.element_count())
             .into_par_iter()
             .with_min_len(CHUNK)
             .map(|e| {
-                let f = self.deformation_gradient(x, e);
                 let df = self.deformation_gradient(d, e);
-                volume_step_limit(&f, &df, STEP_VOLUME_KEPT)
+                volume_step_limit(&steps[e].deformation, &df, STEP_VOLUME_KEPT)
             })
             .reduce(|| 1.0, f64::min)
     }
 
-    /// The volume barrier's curvature at `x` for the step solver: one rank-one term per
-    /// element near folding (`J < Ĵ`, see [`barrier_curvature`]), on its four corners.
-    pub(crate) fn volume_barrier_curvature(&self, x: &[f64], steps: &[LocalStep]) -> Curvature {
+    /// The volume barrier's curvature at the state of `steps` for the step solver: one
+    /// rank-one term per element near folding (`J < Ĵ`, see [`barrier_curvature`]), on its
+    /// four corners.
+    pub(crate) fn volume_barrier_curvature(&self, steps: &[LocalStep]) -> Curvature {
         let terms = steps
             .iter()
             .enumerate()
             .filter(|(_, s)| s.volume_ratio < BARRIER_VOLUME)
-            .filter_map(|(e, _)| {
-                let f = self.deformation_gradient(x, e);
-                let (c, cof) = barrier_curvature(&f, self.element_weights[e])?;
+            .filter_map(|(e, s)| {
+                let (c, cof) = barrier_curvature(&s.deformation, self.element_weights[e])?;
                 let tet = self.mesh.tets[e];
                 let column = (0..4)
                     .map(|k| (tet[k], cof * self.ops[e].grads[k]))

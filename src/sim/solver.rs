@@ -575,14 +575,14 @@ impl Simulator {
         let mut scratch = self.solve_scratch();
         // H₀ with the curvature L lacks (contact's barrier, the volume barrier), rebuilt at
         // every accepted point.
-        let (mut step_inverse, mut near_folding) =
-            match self.step_inverse(&state.x, &steps, contact.as_mut()) {
-                Ok(built) => built,
-                Err(e) => {
-                    restore(state, steps, trial_steps);
-                    return Err(e);
-                }
-            };
+        let (mut step_inverse, mut near_folding) = match self.step_inverse(&steps, contact.as_mut())
+        {
+            Ok(built) => built,
+            Err(e) => {
+                restore(state, steps, trial_steps);
+                return Err(e);
+            }
+        };
         let mut d = vec![0.0; dim];
         let mut x_trial = vec![0.0; dim];
         let mut g_trial = vec![0.0; dim];
@@ -611,7 +611,7 @@ impl Simulator {
                     Some(c) => c.max_step(&d)?,
                     None => 1.0,
                 };
-                alpha = alpha.min(self.volume_step_limit(&state.x, &d));
+                alpha = alpha.min(self.volume_step_limit(&steps, &d));
                 let mut accepted = None;
                 if alpha > 0.0 {
                     for _ in 0..MAX_BACKTRACKS {
@@ -666,7 +666,7 @@ impl Simulator {
                 std::mem::swap(&mut state.x, &mut x_trial);
                 std::mem::swap(&mut g, &mut g_trial);
                 std::mem::swap(&mut steps, &mut trial_steps);
-                let (inverse, near) = self.step_inverse(&state.x, &steps, contact.as_mut())?;
+                let (inverse, near) = self.step_inverse(&steps, contact.as_mut())?;
                 step_inverse = inverse;
                 near_folding = near_folding.max(near);
                 energy = e;
@@ -716,17 +716,16 @@ impl Simulator {
 }
 
 impl Simulator {
-    /// `H₀` at `x` (with the per-element `steps` there): `L⁻¹` plus, by a low-rank update, the
+    /// `H₀` at the state of the local `steps`: `L⁻¹` plus, by a low-rank update, the
     /// curvature of the contact barrier and of the volume barrier; and how many elements are
     /// near folding.
     fn step_inverse(
         &self,
-        x: &[f64],
         steps: &[LocalStep],
         contact: Option<&mut ContactSolve>,
     ) -> Result<(StepInverse, usize), SimError> {
         let start = Instant::now();
-        let barrier = self.volume_barrier_curvature(x, steps);
+        let barrier = self.volume_barrier_curvature(steps);
         let near = barrier.columns.len();
         let (curvature, mode) = match &contact {
             Some(c) => (c.curvature().clone().plus(barrier), c.step_mode()),
