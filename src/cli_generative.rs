@@ -473,6 +473,7 @@ pub fn eval(a: &EvalArgs) -> Result<()> {
             EvalFace {
                 face: &f.model,
                 style: f.style,
+                own_style: None,
                 models,
             }
         })
@@ -550,6 +551,7 @@ pub fn eval(a: &EvalArgs) -> Result<()> {
                 EvalFace {
                     face: &f.model,
                     style: sample.faces[ids[(k + 1) % ids.len()]].style,
+                    own_style: Some(f.style),
                     models,
                 }
             })
@@ -560,9 +562,10 @@ pub fn eval(a: &EvalArgs) -> Result<()> {
         })?;
         bar.finish_and_clear();
         let md = format!(
-            "Style transfer (face B in the next identity's style A):\n\n{}\nOnly the codes every model posed:\n\n{}",
+            "Style transfer (face B in the next identity's style A):\n\n{}\nOnly the codes every model posed:\n\n{}\nB's geometry and A's style kept apart (each code also posed in B's own style):\n\n{}",
             t.table(),
-            t.common_table()
+            t.common_table(),
+            t.style_table()
         );
         write_atomic(&a.out.join("transfer.md"), md.as_bytes())?;
         write_atomic(

@@ -13,11 +13,20 @@
 //! - lip crossings ([`lip_crossings`]): new edge–triangle crossings of the lips, mouth and
 //!   teeth; codes with any, and the total.
 //!
+//! Style transfer ([`EvalFace::own_style`] set: face B posed in identity A's style): every
+//! code is also posed in B's own style, and the *style change* a model makes (its pose in A's
+//! style minus its pose in B's) is compared with the rig's (B's target in A's style minus in
+//! its own), per embedded vertex ([`StyleRow`]). The vertex error in A's style mixes B's
+//! geometry and A's style; this splits them: the own-style error says how well B's geometry is
+//! kept, the style-change error and the share of the rig's style change reproduced
+//! (`1 − Σ‖δ − δ*‖² / Σ‖δ*‖²`) say how well A's style is.
+//!
 //! Codes that fail (a physics solve that folds elements, a non-finite output) are counted, not
 //! hidden; their metrics are left out of the pooled ones, so rows of models that failed on
 //! different codes pool different codes. The common rows pool only the codes every model of
 //! the face posed (like for like); the per-code records say which failed.
 
+use nalgebra::Point3;
 use serde::{Deserialize, Serialize};
 
 use super::GenerativeError;
@@ -83,6 +92,26 @@ pub struct TargetCrossings {
     pub crossings: usize,
 }
 
+/// One face and model in another identity's style (style transfer, module docs), pooled over
+/// the codes it posed in both styles.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct StyleRow {
+    pub face: String,
+    pub model: String,
+    /// Codes posed in both styles.
+    pub poses: usize,
+    /// Mean vertex error (mm) in the face's own style: how well its geometry is kept.
+    pub own_style_mean_mm: Option<f64>,
+    /// Mean length (mm) of the rig's style change `δ*` per vertex: the scale of what is
+    /// transferred.
+    pub rig_style_change_mm: Option<f64>,
+    /// Mean `‖δ − δ*‖` (mm) per vertex: the error of the model's style change.
+    pub style_change_error_mm: Option<f64>,
+    /// `1 − Σ‖δ − δ*‖² / Σ‖δ*‖²`: 1 reproduces the rig's style change exactly, 0 is no better
+    /// than ignoring the style.
+    pub style_kept: Option<f64>,
+}
+
 /// The whole evaluation.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct EvalReport {
@@ -96,6 +125,8 @@ pub struct EvalReport {
     pub common_rows: Vec<EvalRow>,
     pub poses: Vec<EvalPose>,
     pub targets: Vec<TargetCrossings>,
+    /// Per face and model, for faces posed in another identity's style (else empty).
+    pub style_rows: Vec<StyleRow>,
 }
 
 /// How a model poses a face.
@@ -111,6 +142,9 @@ pub enum EvalModel<'a> {
 pub struct EvalFace<'a> {
     pub face: &'a FaceModel,
     pub style: StyleCode,
+    /// The face's own style when `style` is another identity's (style transfer): each code is
+    /// then also posed in it and the style change measured ([`StyleRow`]).
+    pub own_style: Option<StyleCode>,
     pub models: Vec<(&'a str, EvalModel<'a>)>,
 }
 
@@ -163,6 +197,29 @@ impl EvalReport {
             s.push_str(&format!(
                 "| {} | {}/{} ({}) |\n",
                 t.face, t.crossing_poses, t.poses, t.crossings
+            ));
+        }
+        s
+    }
+
+    /// The style-transfer rows as Markdown (empty without any).
+    pub fn style_table(&self) -> String {
+        if self.style_rows.is_empty() {
+            return String::new();
+        }
+        let mut s = String::from(
+            "| face | model | codes posed in both styles | own-style error (mm) | rig's style change (mm) | style-change error (mm) | style kept |\n|---|---|---:|---:|---:|---:|---:|\n",
+        );
+        for r in &self.style_rows {
+            s.push_str(&format!(
+                "| {} | {} | {} | {} | {} | {} | {} |\n",
+                r.face,
+                r.model,
+                r.poses,
+                opt(r.own_style_mean_mm, 3),
+                opt(r.rig_style_change_mm, 3),
+                opt(r.style_change_error_mm, 3),
+                opt(r.style_kept, 3)
             ));
         }
         s
@@ -234,6 +291,7 @@ pub fn evaluate(
     let mut poses = Vec::new();
     let mut target_rows = Vec::new();
     let mut common_rows = Vec::new();
+    let mut style_rows = Vec::new();
     for f in faces {
         let face = f.face;
         let mut sim = face.simulator()?;
@@ -251,23 +309,21 @@ pub fn evaluate(
             .filter(|(_, b)| b.element().is_some())
             .map(|(i, _)| i)
             .collect();
-        let targets = codes
-            .iter()
-            .map(|&expression| {
-                crate::model::target(
-                    rig,
-                    face,
-                    &Codes {
-                        expression,
-                        style: f.style,
-                    },
-                )
-                .map_err(|source| GenerativeError::Target {
-                    face: face.name.clone(),
-                    source,
+        let targets_in = |style: StyleCode| {
+            codes
+                .iter()
+                .map(|&expression| {
+                    crate::model::target(rig, face, &Codes { expression, style }).map_err(
+                        |source| GenerativeError::Target {
+                            face: face.name.clone(),
+                            source,
+                        },
+                    )
                 })
-            })
-            .collect::<Result<Vec<_>, _>>()?;
+                .collect::<Result<Vec<_>, _>>()
+        };
+        let targets = targets_in(f.style)?;
+        let own_targets = f.own_style.map(targets_in).transpose()?;
         let mut target_row = TargetCrossings {
             face: face.name.clone(),
             poses: targets.len(),
@@ -285,6 +341,7 @@ pub fn evaluate(
         for &(name, model) in &f.models {
             progress(&format!("{} with {name}", face.name));
             let mut per_code = Vec::new();
+            let mut style_samples = Vec::new();
             for (c, (&expression, target)) in codes.iter().zip(&targets).enumerate() {
                 let codes = Codes {
                     expression,
@@ -316,6 +373,21 @@ pub fn evaluate(
                         record.iterations = iterations;
                         record.volume = Some(volume);
                         record.crossings = Some(crossings);
+                        if let (Some(own), Some(own_targets)) = (f.own_style, &own_targets) {
+                            let own_codes = Codes {
+                                expression,
+                                style: own,
+                            };
+                            style_samples.push(pose(model, &sim, contact_on, &own_codes).ok().map(
+                                |(x_own, bones_own, _)| {
+                                    StyleSample::of(
+                                        &embedded,
+                                        [&render, &face.render_positions(&x_own, &bones_own)],
+                                        [&target.render, &own_targets[c].render],
+                                    )
+                                },
+                            ));
+                        }
                         per_code.push(Some(Posed {
                             errors,
                             volume,
@@ -325,11 +397,15 @@ pub fn evaluate(
                     Err(msg) => {
                         record.error = Some(msg);
                         per_code.push(None);
+                        style_samples.push(None);
                     }
                 }
                 poses.push(record);
             }
             results.push(per_code);
+            if f.own_style.is_some() {
+                style_rows.push(StyleSample::pooled(&face.name, name, &style_samples));
+            }
         }
         let common: Vec<bool> = (0..codes.len())
             .map(|c| results.iter().all(|r| r[c].is_some()))
@@ -359,7 +435,65 @@ pub fn evaluate(
         common_rows,
         poses,
         targets: target_rows,
+        style_rows,
     })
+}
+
+/// One code posed in both styles by one model: per embedded vertex, the error of its style
+/// change and the rig's style change (mm), and its error in the own style.
+struct StyleSample {
+    change_errors: Vec<f64>,
+    rig_changes: Vec<f64>,
+    own_errors: Vec<f64>,
+}
+
+impl StyleSample {
+    /// From render positions `[in the other style, in the own style]` of the model and of the
+    /// rig's targets.
+    fn of(embedded: &[usize], posed: [&[Point3<f64>]; 2], target: [&[Point3<f64>]; 2]) -> Self {
+        let mut sample = StyleSample {
+            change_errors: Vec::with_capacity(embedded.len()),
+            rig_changes: Vec::with_capacity(embedded.len()),
+            own_errors: Vec::with_capacity(embedded.len()),
+        };
+        for &v in embedded {
+            let model_change = posed[0][v] - posed[1][v];
+            let rig_change = target[0][v] - target[1][v];
+            sample
+                .change_errors
+                .push(MM * (model_change - rig_change).norm());
+            sample.rig_changes.push(MM * rig_change.norm());
+            sample
+                .own_errors
+                .push(MM * (posed[1][v] - target[1][v]).norm());
+        }
+        sample
+    }
+
+    /// One model's [`StyleRow`] over the codes it posed in both styles.
+    fn pooled(face: &str, model: &str, samples: &[Option<StyleSample>]) -> StyleRow {
+        let posed: Vec<&StyleSample> = samples.iter().flatten().collect();
+        let all = |f: fn(&StyleSample) -> &[f64]| -> Vec<f64> {
+            posed.iter().flat_map(|s| f(s).iter().copied()).collect()
+        };
+        let (change, rig, own) = (
+            all(|s| &s.change_errors),
+            all(|s| &s.rig_changes),
+            all(|s| &s.own_errors),
+        );
+        let mean = |v: &[f64]| (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64);
+        let squares = |v: &[f64]| v.iter().map(|e| e * e).sum::<f64>();
+        let rig_squares = squares(&rig);
+        StyleRow {
+            face: face.to_string(),
+            model: model.to_string(),
+            poses: posed.len(),
+            own_style_mean_mm: mean(&own),
+            rig_style_change_mm: mean(&rig),
+            style_change_error_mm: mean(&change),
+            style_kept: (rig_squares > 0.0).then(|| 1.0 - squares(&change) / rig_squares),
+        }
+    }
 }
 
 /// What one posed code gave.

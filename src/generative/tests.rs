@@ -368,6 +368,7 @@ fn held_out_codes_and_eval_run() {
         &[EvalFace {
             face: &f.model,
             style: f.style,
+            own_style: None,
             models: vec![
                 ("networks", EvalModel::Physics(&g)),
                 ("basis", EvalModel::Physics(f.actuation.as_ref())),
@@ -429,8 +430,73 @@ fn held_out_codes_and_eval_run() {
         report.table()
     );
     assert!(report.table().contains("inverted elements"));
+    assert!(report.style_rows.is_empty() && report.style_table().is_empty());
     assert!(report.csv().lines().count() == 4);
     let _ = ExpressionCode::LEN;
+}
+
+/// An actuation model that ignores the style code (always its face's own style): the
+/// reference point of the style metric, whose style change is exactly zero.
+struct StyleBlind<'a> {
+    inner: &'a dyn ActuationModel,
+    style: crate::rig::StyleCode,
+}
+
+impl ActuationModel for StyleBlind<'_> {
+    fn element_count(&self) -> usize {
+        self.inner.element_count()
+    }
+
+    fn actuate(&self, codes: &Codes) -> Result<crate::drive::Actuation, crate::drive::DriveError> {
+        self.inner.actuate(&Codes {
+            style: self.style,
+            ..*codes
+        })
+    }
+}
+
+/// Style transfer's metric splits geometry from style: a model blind to the style keeps none of
+/// the rig's style change (`style kept` exactly 0, its change error the rig's change), while
+/// the face's own basis, fitted to the rig's shapes, keeps most of it.
+#[test]
+fn style_metric_separates_style_from_geometry() {
+    let s = sample();
+    let (b, a) = (&s.faces[0], &s.faces[1]);
+    assert_ne!(a.style, b.style);
+    let blind = StyleBlind {
+        inner: b.actuation.as_ref(),
+        style: b.style,
+    };
+    let codes = held_out_codes(2, 1);
+    let report = evaluate(
+        rig(),
+        &[EvalFace {
+            face: &b.model,
+            style: a.style,
+            own_style: Some(b.style),
+            models: vec![
+                ("basis", EvalModel::Physics(b.actuation.as_ref())),
+                ("blind", EvalModel::Physics(&blind)),
+            ],
+        }],
+        &codes,
+        false,
+        &|_| {},
+    )
+    .unwrap();
+    let [basis, blind] = &report.style_rows[..] else {
+        panic!("{report:?}")
+    };
+    assert_eq!((basis.poses, blind.poses), (2, 2));
+    let rig_change = basis.rig_style_change_mm.unwrap();
+    assert!(rig_change > 0.01, "{basis:?}");
+    assert_eq!(blind.rig_style_change_mm, basis.rig_style_change_mm);
+    assert_eq!(blind.style_kept, Some(0.0));
+    assert!((blind.style_change_error_mm.unwrap() - rig_change).abs() < 1e-12);
+    assert!(basis.style_kept.unwrap() > 0.5, "{basis:?}");
+    // In the own style both are the same model: the same geometry error.
+    assert_eq!(basis.own_style_mean_mm, blind.own_style_mean_mm);
+    assert!(report.style_table().contains("| blind | 2 |"));
 }
 
 /// The bundled sample's trained networks load and drive every face: SPD tensors, a jaw that
