@@ -147,6 +147,10 @@ enum BenchTarget {
         /// With `--sweep`: the sliders' range, `LOW,HIGH`.
         #[arg(long, default_value = "-0.5,1.5")]
         sweep_range: String,
+        /// With `--sweep`: the codes' seed (different seeds give independent sweeps, e.g. to
+        /// split a long sweep over processes).
+        #[arg(long, default_value_t = 1)]
+        sweep_seed: u64,
     },
 }
 
@@ -184,6 +188,7 @@ fn main() -> Result<()> {
                     sweep: Some(count),
                     sweep_mode,
                     sweep_range,
+                    sweep_seed,
                     ..
                 },
         } => {
@@ -213,10 +218,11 @@ fn main() -> Result<()> {
                 .find(|f| f.identity.is_none())
                 .context("the sample has no neutral face")?;
             eprintln!(
-                "sweeping {count} random codes in [{low}, {high}] on {} (interactive, {sweep_mode})…",
+                "sweeping {count} random codes (seed {sweep_seed}) in [{low}, {high}] on {} (interactive, {sweep_mode})…",
                 face.name
             );
-            let codes = facesim::bench::contact_sweep::random_codes_in(count, 1, low, high);
+            let codes =
+                facesim::bench::contact_sweep::random_codes_in(count, sweep_seed, low, high);
             let report = facesim::bench::contact_sweep::sweep(
                 &face.model,
                 face.actuation.as_ref(),
