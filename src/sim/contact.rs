@@ -82,6 +82,10 @@ pub struct ContactStats {
     /// Bone-pose stages (1 unless moving the teeth straight to the new pose would cross a
     /// surface; then the pose is reached in collision-free stages).
     pub pose_stages: usize,
+    /// Of those, stages that carried the tissue with the bones before solving (the rest
+    /// moved only the teeth; see [`super::staging`]).
+    #[serde(default)]
+    pub carried_stages: usize,
     /// Edge–triangle crossings of the contact surface after the solve that were not there at
     /// rest: always 0 in a returned result (anything else is [`super::SimError::Intersecting`]).
     pub new_crossings: usize,
@@ -448,9 +452,40 @@ impl<'a> ContactSolve<'a> {
         &self.curvature
     }
 
+    /// The contact model this solve runs on.
+    pub(crate) fn model(&self) -> &'a ContactModel {
+        self.model
+    }
+
     /// How steps bring the curvature in.
     pub(crate) fn step_mode(&self) -> ContactStep {
         self.model.step
+    }
+
+    /// `−Wᵀ·[∇²B]₊·dy`: the barrier force on the simulation vertices, to first order, when
+    /// the contact vertices move by `dy` (the pose stages pass the teeth's motion, so the
+    /// lips they press on are predicted to move along; see [`super::staging`]).
+    pub(crate) fn push(&self, dy: &[f64], n: usize) -> Result<Vec<f64>, ContactError> {
+        let blocks =
+            self.potential
+                .hessian(&self.collisions, &self.y, Projection::ClampEigenvalues)?;
+        let mut fy = vec![0.0; dy.len()];
+        for b in &blocks {
+            let v = nalgebra::SVector::<f64, 12>::from_iterator(
+                b.vertices
+                    .iter()
+                    .flat_map(|&i| (0..3).map(move |k| dy[3 * i as usize + k])),
+            );
+            let f = b.matrix * v;
+            for (slot, &i) in b.vertices.iter().enumerate() {
+                for k in 0..3 {
+                    fy[3 * i as usize + k] -= f[3 * slot + k];
+                }
+            }
+        }
+        let mut fx = vec![0.0; 3 * n];
+        self.model.face.add_pulled_back(&fy, &mut fx);
+        Ok(fx)
     }
 
     /// Fills the end-of-solve statistics.

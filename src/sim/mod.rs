@@ -14,6 +14,7 @@ pub mod polar;
 pub mod shape_targeting;
 pub mod simulator;
 pub mod solver;
+mod staging;
 pub mod tensor;
 mod vector;
 

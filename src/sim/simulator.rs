@@ -390,6 +390,14 @@ impl Simulator {
         if !bones.skull.is_finite() || !bones.jaw.is_finite() {
             return Err(SimError::NonFiniteBones(*bones));
         }
+        Ok(Frame {
+            actuations: actuations.iter().map(SymTensor::to_matrix).collect(),
+            targets: self.attachment_targets(bones),
+        })
+    }
+
+    /// Interleaved attachment targets under `bones` (zero where a vertex is free).
+    pub(crate) fn attachment_targets(&self, bones: &BonePose) -> Vec<f64> {
         let mut targets = vec![0.0; 3 * self.vertex_count()];
         for (&v, &bone) in self
             .attachments
@@ -404,10 +412,7 @@ impl Simulator {
             );
             targets[3 * v as usize..3 * v as usize + 3].copy_from_slice(t.coords.as_slice());
         }
-        Ok(Frame {
-            actuations: actuations.iter().map(SymTensor::to_matrix).collect(),
-            targets,
-        })
+        targets
     }
 
     #[inline]

@@ -17,6 +17,7 @@ use super::contact_gate::{Attempt, ContactGate, GateOutcome, note_refusal};
 use super::low_rank::StepInverse;
 use super::shape_targeting::LocalStep;
 use super::simulator::{SimError, SimState, Simulator};
+use super::staging::StageStart;
 use super::tensor::SymTensor;
 use super::vector::{axpy, dot, norm};
 
@@ -254,8 +255,16 @@ impl History {
 /// Most bone-pose stages a contact solve may split a pose change into.
 const MAX_POSE_STAGES: usize = 64;
 
-/// The pose a fraction `s` of the way from `a` to `b` (parameters interpolated linearly).
+/// Iteration cap of an intermediate pose stage (the last one gets the preset's).
+const STAGE_ITERATIONS: usize = 10;
+
+/// The pose a fraction `s` of the way from `a` to `b` (parameters interpolated linearly);
+/// exactly `b` at `s = 1` (so a solved state records the very pose it was asked for, and the
+/// next solve at that pose moves nothing).
 fn lerp_pose(a: &BonePose, b: &BonePose, s: f64) -> BonePose {
+    if s == 1.0 {
+        return *b;
+    }
     let mix = |p: &RigidMotion, q: &RigidMotion| {
         let (p, q) = (p.params(), q.params());
         RigidMotion::from_params(std::array::from_fn(|k| p[k] + s * (q[k] - p[k])))
@@ -273,8 +282,8 @@ impl Simulator {
     ///
     /// With contact set up ([`Simulator::set_contact`]) and `settings.contact` on, the barrier
     /// is part of the energy, every line-search step is collision-checked, rigid contact
-    /// surfaces (teeth) are moved to the new pose in collision-free stages, and the result is
-    /// checked for crossings ([`SimError::Intersecting`]).
+    /// surfaces (teeth) are moved to the new pose in collision-free stages with the tissue
+    /// carried along, and the result is checked for crossings ([`SimError::Intersecting`]).
     ///
     /// Errors are loud: bad inputs are rejected before anything changes; a result with
     /// inverted elements is returned as [`SimError::Inverted`] (the state then holds it, for
@@ -362,8 +371,9 @@ impl Simulator {
         self.solve_stage(frame, None, bones, state, settings)
     }
 
-    /// The full contact solve: the teeth moved to the new pose in collision-free stages,
-    /// the barrier in every stage, and the crossing check at the end.
+    /// The full contact solve: the bones moved to the new pose in collision-free stages
+    /// (the tissue carried along with them where that is certified, see `staging`), the
+    /// barrier in every stage, and the crossing check at the end.
     fn solve_with_contact(
         &self,
         model: &ContactModel,
@@ -375,49 +385,54 @@ impl Simulator {
     ) -> Result<SolveStats, SimError> {
         let start = Instant::now();
 
-        // Move the rigid contact surfaces to the new pose in stages that CCD certifies free
-        // of crossings (with the tissue where it is), solving after each.
+        // Reach the new pose in stages that CCD certifies free of crossings, each starting
+        // with the tissue carried along with the bones when that is certified too (see
+        // `staging`), solving after each.
         let from = state.bones;
         let mut reached = 0.0;
         let mut total: Option<SolveStats> = None;
         let mut stages = 0;
+        let mut carried_stages = 0;
         loop {
             let mut s = 1.0;
-            let start = lerp_pose(&from, bones, reached);
-            // Only a pose change moves the teeth (an unchanged jaw needs no broad phase here).
-            let gap = if start == *bones {
+            let here = lerp_pose(&from, bones, reached);
+            // Only a pose change moves anything (an unchanged jaw needs no broad phase here).
+            let gap = if here == *bones {
                 model.face.dhat()
             } else {
-                self.obstacle_gap(model, &state.x, &start)?
+                self.obstacle_gap(model, &state.x, &here)?
             };
-            loop {
-                let free = self.obstacles_free_fraction(
-                    model,
-                    &state.x,
-                    &start,
-                    &lerp_pose(&from, bones, s),
-                    gap,
-                )?;
-                if free >= 1.0 {
-                    break;
+            let carry = if here == *bones {
+                None
+            } else {
+                let carrier = self.carrier(model, actuations, &state.x, &state.steps, &here)?;
+                loop {
+                    let pose = lerp_pose(&from, bones, s);
+                    if let Some(start) = self.stage_start(&carrier, &state.x, &pose, gap)? {
+                        break Some(start);
+                    }
+                    // Bisection: the fraction CCD certifies is far more cautious (it keeps a
+                    // tenth of every gap), so jumping to it made more, shorter stages
+                    // (measured: a random code then exceeded the stage limit).
+                    s = reached + 0.5 * (s - reached);
+                    if s - reached < 1e-9 {
+                        return Err(SimError::Setup(
+                            "the teeth cannot move toward the new pose without crossing the \
+                             lips (the tissue is pinned against them)"
+                                .into(),
+                        ));
+                    }
                 }
-                // Bisection: the fraction CCD certifies is far more cautious (it keeps a
-                // tenth of every gap), so jumping to it made more, shorter stages (measured:
-                // a random code then exceeded the stage limit).
-                s = reached + 0.5 * (s - reached);
-                if s - reached < 1e-9 {
-                    return Err(SimError::Setup(
-                        "the teeth cannot move toward the new pose without crossing the lips \
-                         (the tissue is pinned against them)"
-                            .into(),
-                    ));
-                }
-            }
+            };
             stages += 1;
             if stages > MAX_POSE_STAGES {
                 return Err(SimError::Setup(format!(
                     "reaching the bone pose needed more than {MAX_POSE_STAGES} collision-free stages"
                 )));
+            }
+            if let Some(StageStart::Carried(dx)) = carry {
+                axpy(1.0, &dx, &mut state.x);
+                carried_stages += 1;
             }
             let pose = lerp_pose(&from, bones, s);
             let stage_frame;
@@ -427,7 +442,17 @@ impl Simulator {
                 stage_frame = self.frame(actuations, &pose)?;
                 &stage_frame
             };
-            let result = self.solve_stage(f, Some(model), &pose, state, settings);
+            // An intermediate stage only has to end valid (the next one starts from it), not
+            // converged.
+            let stage_settings = SolveSettings {
+                max_iterations: if s == 1.0 {
+                    settings.max_iterations
+                } else {
+                    settings.max_iterations.min(STAGE_ITERATIONS)
+                },
+                ..*settings
+            };
+            let result = self.solve_stage(f, Some(model), &pose, state, &stage_settings);
             state.bones = pose;
             let stats = match result {
                 Ok(stats) => stats,
@@ -436,7 +461,7 @@ impl Simulator {
                     first,
                     mut stats,
                 }) if s == 1.0 => {
-                    merge_stages(&mut stats, total, stages);
+                    merge_stages(&mut stats, total, stages, carried_stages);
                     return Err(SimError::Inverted {
                         count,
                         first,
@@ -446,7 +471,7 @@ impl Simulator {
                 Err(e) => return Err(e),
             };
             let mut stats = stats;
-            merge_stages(&mut stats, total.take(), stages);
+            merge_stages(&mut stats, total.take(), stages, carried_stages);
             total = Some(stats);
             if s == 1.0 {
                 break;
@@ -470,47 +495,6 @@ impl Simulator {
             });
         }
         Ok(stats)
-    }
-
-    /// The smallest distance between contact surfaces within d̂ at pose `a` with the tissue
-    /// at `x` (d̂ when none is that close).
-    fn obstacle_gap(&self, model: &ContactModel, x: &[f64], a: &BonePose) -> Result<f64, SimError> {
-        let mut ya = vec![0.0; 3 * model.face.vertex_count()];
-        model.face.positions(x, a, &mut ya);
-        Ok(model.face.collisions(&ya)?.min_distance_squared().sqrt())
-    }
-
-    /// The fraction of the move of the rigid contact vertices from pose `a` to pose `b`
-    /// (straight lines, tissue fixed at `x`) that crosses no surface and takes no more than
-    /// half of `gap` (the closest distance at `a`, so the barrier a stage starts with stays
-    /// moderate): 1 when the whole move is free.
-    fn obstacles_free_fraction(
-        &self,
-        model: &ContactModel,
-        x: &[f64],
-        a: &BonePose,
-        b: &BonePose,
-        gap: f64,
-    ) -> Result<f64, SimError> {
-        if a == b {
-            return Ok(1.0);
-        }
-        let m = 3 * model.face.vertex_count();
-        let (mut ya, mut yb) = (vec![0.0; m], vec![0.0; m]);
-        model.face.positions(x, a, &mut ya);
-        model.face.positions(x, b, &mut yb);
-        let dy: Vec<f64> = yb.iter().zip(&ya).map(|(p, q)| p - q).collect();
-        let report = crate::contact::collision_free_step(
-            model.face.mesh(),
-            &ya,
-            &dy,
-            &crate::contact::CcdOptions {
-                min_distance: 0.5 * gap,
-                max_iterations: 1000,
-                ..crate::contact::CcdOptions::default()
-            },
-        )?;
-        Ok(report.step)
     }
 
     /// One solve at fixed bones (with the rigid contact surfaces already there).
@@ -719,7 +703,7 @@ impl Simulator {
     /// `H₀` at the state of the local `steps`: `L⁻¹` plus, by a low-rank update, the
     /// curvature of the contact barrier and of the volume barrier; and how many elements are
     /// near folding.
-    fn step_inverse(
+    pub(super) fn step_inverse(
         &self,
         steps: &[LocalStep],
         contact: Option<&mut ContactSolve>,
@@ -741,9 +725,15 @@ impl Simulator {
 }
 
 /// Folds the statistics of earlier pose stages into the last one's.
-fn merge_stages(last: &mut SolveStats, earlier: Option<SolveStats>, stages: usize) {
+fn merge_stages(
+    last: &mut SolveStats,
+    earlier: Option<SolveStats>,
+    stages: usize,
+    carried_stages: usize,
+) {
     if let Some(c) = last.contact.as_mut() {
         c.pose_stages = stages;
+        c.carried_stages = carried_stages;
     }
     let Some(e) = earlier else {
         return;

@@ -1,0 +1,77 @@
+//! Per-frame view of the random-code sweep with contact on (`facesim bench contact --sweep`
+//! keeps only outcomes): for codes `FROM..TO` of the seeded sweep (seed 1, sliders in
+//! `[-0.5, 1.5]`, interactive preset, warm-started, a failed frame restarts the next from
+//! rest), each frame's outcome, pose stages (and how many carried the tissue), iterations,
+//! wall time and how far the jaw moved from the previous frame.
+//!
+//! `cargo run --release -p facesim --example sweep_stages -- 0 30` (from the repository root;
+//! frames before `FROM` are solved too, so the chain is the sweep's, but not printed).
+
+use anyhow::{Context, Result, bail};
+use facesim::bench::contact_sweep::random_codes;
+use facesim::contact::face::{FaceContact, FaceContactSettings};
+use facesim::sim::{BonePose, Quality};
+
+fn main() -> Result<()> {
+    let args: Vec<usize> = std::env::args()
+        .skip(1)
+        .map(|a| {
+            a.parse()
+                .with_context(|| format!("'{a}' is not a frame index"))
+        })
+        .collect::<Result<_>>()?;
+    let [from, to] = args[..] else {
+        bail!("usage: sweep_stages FROM TO (frame indices, FROM < TO)");
+    };
+    if from >= to {
+        bail!("FROM ({from}) must be below TO ({to})");
+    }
+    let sample = facesim::sample::Sample::load(facesim::sample::SAMPLE_DIR)
+        .context("loading the bundled sample (run from the repository root)")?;
+    let face = sample
+        .faces
+        .iter()
+        .find(|f| f.identity.is_none())
+        .context("the sample has no neutral face")?;
+    let mut sim = face.model.simulator()?;
+    sim.set_contact(FaceContact::new(
+        &face.model,
+        &FaceContactSettings::default(),
+    )?)?;
+    let settings = Quality::Interactive.settings();
+    let mut state = sim.rest_state();
+    let mut previous = BonePose::default();
+    for (i, code) in random_codes(to, 1).iter().enumerate() {
+        let a = face.actuation.actuate(code)?;
+        let bones = a.bones();
+        let (p, q) = (previous.jaw.params(), bones.jaw.params());
+        let norm = |r: std::ops::Range<usize>| r.map(|k| (q[k] - p[k]).powi(2)).sum::<f64>().sqrt();
+        let jaw = format!("jaw moved {:.3} rad, {:.3} cm", norm(0..3), norm(3..6));
+        let result = sim.solve(&a.tensors, &bones, &mut state, &settings);
+        if i >= from {
+            match &result {
+                Ok(s) => {
+                    let c = s.contact.as_ref();
+                    println!(
+                        "frame {i}: ok ({:?}), {} stages ({} carried), {} iterations, {:.2} s, \
+                         gate {:?}, {jaw}",
+                        s.termination,
+                        c.map_or(0, |c| c.pose_stages),
+                        c.map_or(0, |c| c.carried_stages),
+                        s.iterations,
+                        s.wall_time.as_secs_f64(),
+                        c.map(|c| c.gate),
+                    );
+                }
+                Err(e) => println!("frame {i}: error: {e}, {jaw}"),
+            }
+        }
+        if result.is_err() {
+            state = sim.rest_state();
+            previous = BonePose::default();
+        } else {
+            previous = bones;
+        }
+    }
+    Ok(())
+}
