@@ -64,7 +64,7 @@ pub struct TrainArgs {
     contact: bool,
     #[arg(long, default_value_t = Stage1Config::default().seed)]
     seed: u64,
-    /// Iterations (default: 6000; stage 2: 120).
+    /// Iterations (default: 6000; stage 2: 800).
     #[arg(long)]
     iterations: Option<u64>,
     /// Peak learning rate, constant for the first half, then linear decay to 0 (default:
@@ -163,15 +163,16 @@ fn median(v: &mut [f64]) -> f64 {
     if v.is_empty() { 0.0 } else { v[v.len() / 2] }
 }
 
-/// The stage-1 poses of every sample face: cached ones, the rest fitted (and cached).
+/// The stage-1 poses of every sample face: cached ones, the rest fitted (and cached); `rig`
+/// is loaded from `rig_dir` when first needed (and kept for the caller).
 fn stage1_poses(
     sample: &Sample,
     rig_dir: &Path,
+    rig: &mut Option<FaceRig>,
     dir: &Path,
     settings: &PoseSettings,
 ) -> Result<Vec<FacePoses>> {
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-    let mut rig: Option<FaceRig> = None;
     let mut out = Vec::new();
     for (i, f) in sample.faces.iter().enumerate() {
         let path = dir.join(format!("{}.poses", f.name));
@@ -188,7 +189,7 @@ fn stage1_poses(
             continue;
         }
         if rig.is_none() {
-            rig = Some(crate::load_rig(rig_dir)?);
+            *rig = Some(crate::load_rig(rig_dir)?);
         }
         let bar = indicatif::ProgressBar::new(0);
         bar.set_style(indicatif::ProgressStyle::with_template(
@@ -257,7 +258,8 @@ pub fn train(a: &TrainArgs) -> Result<()> {
         combinations: a.combinations,
         ..PoseSettings::default()
     };
-    let poses = stage1_poses(&sample, &a.rig, &a.out.join("poses"), &settings)?;
+    let mut rig = None;
+    let poses = stage1_poses(&sample, &a.rig, &mut rig, &a.out.join("poses"), &settings)?;
     let stage2 = a.stage == Stage::Two;
     let defaults = if stage2 {
         stage2_defaults()
@@ -317,7 +319,10 @@ pub fn train(a: &TrainArgs) -> Result<()> {
                 architecture: nets.architecture,
                 ..config
             };
-            let rig = crate::load_rig(&a.rig)?;
+            let rig = match rig {
+                Some(r) => r,
+                None => crate::load_rig(&a.rig)?,
+            };
             let stage2 = Stage2Settings {
                 solve: facesim::sim::SolveSettings {
                     contact: a.contact,
@@ -366,7 +371,7 @@ pub fn train(a: &TrainArgs) -> Result<()> {
 /// moments settle), and iterations that fit the 60-minute budget on this machine.
 fn stage2_defaults() -> Stage1Config {
     Stage1Config {
-        iterations: 120,
+        iterations: 800,
         learning_rate: 1e-4,
         elements_per_pose: 0,
         ..Stage1Config::default()

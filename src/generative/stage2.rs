@@ -9,7 +9,8 @@
 //!    the jaw from N_B;
 //! 2. a quasistatic solve warm-started from the pose's cached fitted state (always that state,
 //!    not the last stage-2 one: a run is then a function of the networks and the seed alone, so
-//!    checkpoints stay small and a resumed run is bitwise the uninterrupted one);
+//!    checkpoints stay small and a resumed run is bitwise the uninterrupted one; from rest
+//!    where the fitted state has folded elements, which the solver refuses as a start);
 //! 3. the surface loss `ℓ = mean over the embedded render vertices of ‖x_render − target‖²`
 //!    (cm²; the skin and lips the tissue carries, the vertices [`super::eval`] measures), with
 //!    `target` the rig's skin for the pose ([`crate::model::target`]);
@@ -43,8 +44,8 @@ use crate::model::face::Binding;
 use crate::nn::{Checkpoint, CodeBatch, Mlp, Pass, Tape};
 use crate::rig::FaceRig;
 use crate::sim::{
-    Bone, BonePose, Quality, RigidMotion, SimState, Simulator, SolveSettings, SymTensor,
-    Termination,
+    Bone, BonePose, Quality, RigidMotion, SimError, SimState, Simulator, SolveSettings, SolveStats,
+    SymTensor, Termination,
 };
 
 /// How stage 2 solves and when it trusts a solve.
@@ -86,7 +87,7 @@ pub struct SkinPoint {
 }
 
 impl SkinPoint {
-    fn position(&self, x: &[f64], bones: &BonePose, pivot: &Point3<f64>) -> Point3<f64> {
+    pub(crate) fn position(&self, x: &[f64], bones: &BonePose, pivot: &Point3<f64>) -> Point3<f64> {
         let mut soft = Vector3::zeros();
         for (v, w) in self.tet.iter().zip(self.weights) {
             let i = 3 * *v as usize;
@@ -252,7 +253,7 @@ impl Stage2Face {
 
     /// `ℓ` at simulation positions `x` and bones, and when `grad` is given, **adds**
     /// `∂ℓ/∂x` into it and returns `∂ℓ/∂[θ; t]` of the skin that rides the jaw directly.
-    fn surface_loss(
+    pub(crate) fn surface_loss(
         &self,
         pose: &Stage2Pose,
         x: &[f64],
@@ -364,7 +365,7 @@ fn actuate(
     Ok((logs, tensors, jaw))
 }
 
-fn bones_of(jaw: [f64; 6]) -> BonePose {
+pub(crate) fn bones_of(jaw: [f64; 6]) -> BonePose {
     BonePose {
         skull: RigidMotion::IDENTITY,
         jaw: RigidMotion::from_params(jaw),
@@ -383,11 +384,7 @@ pub fn pose_gradient(
 ) -> Result<Result<PoseGradient, Skip>, GenerativeError> {
     let (logs, tensors, jaw) = actuate(nets, face, u)?;
     let bones = bones_of(jaw);
-    let mut state = start_state(face, pose)?;
-    let stats = match face
-        .sim
-        .solve(&tensors, &bones, &mut state, &settings.solve)
-    {
+    let (state, stats) = match solve_pose(face, pose, &tensors, &bones, settings)? {
         Ok(s) => s,
         Err(e) => return Ok(Err(Skip::SolveFailed(e.to_string()))),
     };
@@ -439,8 +436,17 @@ pub fn pose_gradient(
     }))
 }
 
-/// The solve's warm start: the pose's fitted state under its fitted jaw.
-fn start_state(face: &Stage2Face, pose: &Stage2Pose) -> Result<SimState, GenerativeError> {
+/// Solves pose `pose` from its fitted state under its fitted jaw (from rest with contact on,
+/// or when that state has folded elements (the passive fit clamps stretches but can leave a few folded where
+/// the rig's target crushes tissue; the solver refuses such starts)). `Ok(Err)`: the solve
+/// failed.
+fn solve_pose(
+    face: &Stage2Face,
+    pose: &Stage2Pose,
+    tensors: &[SymTensor],
+    bones: &BonePose,
+    settings: &Stage2Settings,
+) -> Result<Result<(SimState, SolveStats), SimError>, GenerativeError> {
     let points: Vec<Point3<f64>> = pose
         .start
         .chunks_exact(3)
@@ -448,7 +454,21 @@ fn start_state(face: &Stage2Face, pose: &Stage2Pose) -> Result<SimState, Generat
         .collect();
     let mut state = face.sim.state_at(&points)?;
     state.bones = bones_of(pose.start_jaw);
-    Ok(state)
+    if settings.solve.contact {
+        // The fitted state follows the rig's skin, whose lips may cross (the rig knows no
+        // contact): contact must start from a crossing-free state, the rest.
+        state = face.sim.rest_state();
+    }
+    match face.sim.solve(tensors, bones, &mut state, &settings.solve) {
+        Err(SimError::FoldedStart(_)) => {
+            let mut state = face.sim.rest_state();
+            Ok(face
+                .sim
+                .solve(tensors, bones, &mut state, &settings.solve)
+                .map(|s| (state, s)))
+        }
+        r => Ok(r.map(|s| (state, s))),
+    }
 }
 
 /// The surface loss of one pose driven by the networks (no gradient), `None` when its solve
@@ -463,12 +483,8 @@ pub fn pose_loss(
     let u: Vec<f64> = (0..u.ncols()).map(|k| u[(0, k)]).collect();
     let (_, tensors, jaw) = actuate(nets, face, &u)?;
     let bones = bones_of(jaw);
-    let mut state = start_state(face, pose)?;
-    match face
-        .sim
-        .solve(&tensors, &bones, &mut state, &settings.solve)
-    {
-        Ok(s) if s.termination != Termination::IterationCap => Ok(Some(
+    match solve_pose(face, pose, &tensors, &bones, settings)? {
+        Ok((state, s)) if s.termination != Termination::IterationCap => Ok(Some(
             face.surface_loss(pose, state.flat_positions(), &bones, None)
                 .0,
         )),
