@@ -48,6 +48,10 @@ use crate::sim::{
     SymTensor, Termination,
 };
 
+/// The stage-2 networks' file name in a sample folder, next to the stage-1
+/// [`super::SAMPLE_NETWORKS`] (same format; `eval --model` and `GenerativeNets::load` take it).
+pub const SAMPLE_STAGE2_NETWORKS: &str = "generative-stage2.nn";
+
 /// How stage 2 solves and when it trusts a solve.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Stage2Settings {

@@ -357,3 +357,27 @@ fn sample_face_stage2_data() {
     assert!(g.logs.iter().flatten().all(|v| v.is_finite()));
     assert!(g.logs.iter().flatten().any(|v| *v != 0.0));
 }
+
+/// The bundled stage-2 networks load, share the stage-1 networks' architecture and frame,
+/// differ from them, and drive every sample face with SPD tensors and a finite jaw.
+#[test]
+fn bundled_stage2_networks_drive_every_sample_face() {
+    use std::sync::Arc;
+    let s = super::tests::sample();
+    let stage1 = GenerativeNets::load(&s.dir.join(super::SAMPLE_NETWORKS)).unwrap();
+    let stage2 = GenerativeNets::load(&s.dir.join(super::stage2::SAMPLE_STAGE2_NETWORKS)).unwrap();
+    assert_eq!(stage2.architecture, stage1.architecture);
+    assert_eq!(stage2.frame, stage1.frame);
+    assert_ne!(bits(&stage2), bits(&stage1));
+    let models = super::sample_actuations(s, Arc::new(stage2)).unwrap();
+    for (m, f) in models.iter().zip(&s.faces) {
+        let open = Codes {
+            expression: ExpressionCode::single("jawOpen", 1.0).unwrap(),
+            style: f.style,
+        };
+        let a = m.actuate(&open).unwrap();
+        assert_eq!(a.tensors.len(), f.model.mesh.element_count());
+        assert!(a.tensors.iter().all(|t| t.validate().is_ok()));
+        assert!(a.jaw.rotation.x > 0.05, "{}: {:?}", f.name, a.jaw);
+    }
+}
