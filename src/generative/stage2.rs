@@ -333,13 +333,15 @@ fn grad_stored(m: &[f64; 6]) -> [f64; 6] {
     [m[0], m[1], m[2], 2.0 * m[3], 2.0 * m[4], 2.0 * m[5]]
 }
 
-/// The actuations and jaw the networks give face `face` for one modulation row `u`: each
-/// element's material `log Ã` and `Ã`, and the jaw `[θ; t]`.
+/// Each element's material `log Ã` and `Ã`, and the jaw `[θ; t]`.
+type Actuated = (Vec<[f64; 6]>, Vec<SymTensor>, [f64; 6]);
+
+/// The actuations and jaw the networks give face `face` for one modulation row `u`.
 fn actuate(
     nets: &GenerativeNets,
     face: &Stage2Face,
     u: &[f64],
-) -> Result<(Vec<[f64; 6]>, Vec<SymTensor>, [f64; 6]), GenerativeError> {
+) -> Result<Actuated, GenerativeError> {
     let mut tape = Tape::new();
     nets.actuation.forward(
         face.input.as_ref(),
