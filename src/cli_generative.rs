@@ -16,8 +16,8 @@ use facesim::generative::train::LOSS_CSV_HEADER;
 use facesim::generative::transfer::NearestElementTransfer;
 use facesim::generative::{
     CanonicalFrame, DisplacementData, DisplacementFace, DisplacementNets, GenerativeFace,
-    GenerativeNets, ModelTrainer, PoseSettings, Stage1Config, Stage1Data, TrainableNets,
-    held_out_codes,
+    GenerativeNets, ModelTrainer, PoseSettings, Stage1Config, Stage1Data, Stage2Data, Stage2Face,
+    Stage2Nets, Stage2Settings, TrainableNets, held_out_codes,
 };
 use facesim::nn::Checkpoint;
 use facesim::rig::FaceRig;
@@ -29,44 +29,59 @@ pub enum Stage {
     /// Stage 1: fit the expression/style networks to the stage-1 actuations and jaw motions.
     #[value(name = "1")]
     One,
+    /// Stage 2: fine-tune the networks of `--init` through the simulator (surface loss
+    /// against the rig's skin, sensitivities by implicit differentiation).
+    #[value(name = "2")]
+    Two,
     /// The displacement baseline: fit N_D to the same poses' vertex displacements.
     Displacement,
 }
 
 #[derive(clap::Args)]
 pub struct TrainArgs {
-    /// What to train: `1` (stage 1 of the expression/style networks → generative.nn) or
+    /// What to train: `1` (stage 1 of the expression/style networks → generative.nn), `2`
+    /// (stage 2: fine-tune `--init` through the simulator → generative-stage2.nn) or
     /// `displacement` (the no-physics baseline → displacement.nn).
     #[arg(long)]
     stage: Stage,
     /// The sample folder (faces, mappings).
     #[arg(long, default_value = facesim::sample::SAMPLE_DIR)]
     sample: PathBuf,
-    /// The rig (needed only to make missing stage-1 data).
+    /// The rig (needed to make missing stage-1 data, and by stage 2 for its targets).
     #[arg(long, default_value = "../shared/data/ict-facekit")]
     rig: PathBuf,
-    /// Output folder: generative.nn, checkpoint.nn, loss.csv, train.json, poses/ (the
+    /// Output folder: generative.nn, checkpoint.nn, loss.csv, train.json, poses/ (stage 2:
+    /// generative-stage2.nn, stage2-checkpoint.nn, stage2-loss.csv, stage2-train.json; the
     /// displacement stage: displacement.nn, displacement-checkpoint.nn, displacement-loss.csv,
     /// displacement-train.json; the same poses/ cache).
     #[arg(long)]
     out: PathBuf,
+    /// Stage 2: the networks to fine-tune (default: the sample's generative.nn).
+    #[arg(long)]
+    init: Option<PathBuf>,
+    /// Stage 2: solve with lip and teeth contact (through the contact gate; much slower).
+    #[arg(long)]
+    contact: bool,
     #[arg(long, default_value_t = Stage1Config::default().seed)]
     seed: u64,
-    #[arg(long, default_value_t = Stage1Config::default().iterations)]
-    iterations: u64,
-    /// Peak learning rate (constant for the first half, then linear decay to 0).
-    #[arg(long, default_value_t = Stage1Config::default().learning_rate)]
-    lr: f64,
+    /// Iterations (default: 6000; stage 2: 800).
+    #[arg(long)]
+    iterations: Option<u64>,
+    /// Peak learning rate, constant for the first half, then linear decay to 0 (default:
+    /// 1e-3; stage 2: 1e-4).
+    #[arg(long)]
+    lr: Option<f64>,
     /// Poses per batch.
     #[arg(long, default_value_t = Stage1Config::default().batch_poses)]
     batch: usize,
-    /// Elements sampled per pose (0: all).
+    /// Elements sampled per pose (0: all; stage 2 always uses all).
     #[arg(long, default_value_t = Stage1Config::default().elements_per_pose)]
     elements_per_pose: usize,
-    /// Write checkpoint.nn every this many iterations (and at the end).
-    #[arg(long, default_value_t = 500)]
-    checkpoint_every: u64,
-    /// Continue from OUT/checkpoint.nn (same settings) instead of starting over.
+    /// Write the checkpoint every this many iterations, and at the end (default: 500;
+    /// stage 2: 5).
+    #[arg(long)]
+    checkpoint_every: Option<u64>,
+    /// Continue from the checkpoint in OUT (same settings) instead of starting over.
     #[arg(long)]
     resume: bool,
     /// Random combinations per face in the stage-1 data.
@@ -148,15 +163,16 @@ fn median(v: &mut [f64]) -> f64 {
     if v.is_empty() { 0.0 } else { v[v.len() / 2] }
 }
 
-/// The stage-1 poses of every sample face: cached ones, the rest fitted (and cached).
+/// The stage-1 poses of every sample face: cached ones, the rest fitted (and cached); `rig`
+/// is loaded from `rig_dir` when first needed (and kept for the caller).
 fn stage1_poses(
     sample: &Sample,
     rig_dir: &Path,
+    rig: &mut Option<FaceRig>,
     dir: &Path,
     settings: &PoseSettings,
 ) -> Result<Vec<FacePoses>> {
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-    let mut rig: Option<FaceRig> = None;
     let mut out = Vec::new();
     for (i, f) in sample.faces.iter().enumerate() {
         let path = dir.join(format!("{}.poses", f.name));
@@ -173,7 +189,7 @@ fn stage1_poses(
             continue;
         }
         if rig.is_none() {
-            rig = Some(crate::load_rig(rig_dir)?);
+            *rig = Some(crate::load_rig(rig_dir)?);
         }
         let bar = indicatif::ProgressBar::new(0);
         bar.set_style(indicatif::ProgressStyle::with_template(
@@ -210,6 +226,30 @@ fn stage1_poses(
     Ok(out)
 }
 
+/// Each sample face's warp (`warp_of`: its elements' or its vertices' canonical positions)
+/// with its poses.
+fn warped(
+    sample: &Sample,
+    frame: &CanonicalFrame,
+    poses: Vec<FacePoses>,
+    warp_of: impl Fn(
+        &facesim::model::FaceModel,
+        Option<&facesim::mapping::Mapping>,
+        &CanonicalFrame,
+    ) -> Result<FaceWarp, facesim::generative::GenerativeError>,
+) -> Result<Vec<(FaceWarp, FacePoses)>> {
+    sample
+        .faces
+        .iter()
+        .zip(poses)
+        .map(|(f, p)| {
+            let warp = warp_of(&f.model, f.mapping.as_ref(), frame)
+                .with_context(|| format!("canonical positions of {}", f.name))?;
+            Ok((warp, p))
+        })
+        .collect()
+}
+
 pub fn train(a: &TrainArgs) -> Result<()> {
     let sample = sample(&a.sample)?;
     let frame = canonical_frame(&sample)?;
@@ -218,70 +258,152 @@ pub fn train(a: &TrainArgs) -> Result<()> {
         combinations: a.combinations,
         ..PoseSettings::default()
     };
-    let poses = stage1_poses(&sample, &a.rig, &a.out.join("poses"), &settings)?;
+    let mut rig = None;
+    let poses = stage1_poses(&sample, &a.rig, &mut rig, &a.out.join("poses"), &settings)?;
+    let stage2 = a.stage == Stage::Two;
+    let defaults = if stage2 {
+        stage2_defaults()
+    } else {
+        Stage1Config::default()
+    };
     let config = Stage1Config {
-        iterations: a.iterations,
-        learning_rate: a.lr,
+        iterations: a.iterations.unwrap_or(defaults.iterations),
+        learning_rate: a.lr.unwrap_or(defaults.learning_rate),
         batch_poses: a.batch,
-        elements_per_pose: a.elements_per_pose,
+        elements_per_pose: if stage2 { 0 } else { a.elements_per_pose },
         seed: a.seed,
-        ..Stage1Config::default()
+        ..defaults
+    };
+    let checkpoint_every = a.checkpoint_every.unwrap_or(if stage2 { 5 } else { 500 });
+    let run = |config: Stage1Config, files| RunSettings {
+        args: a,
+        config,
+        frame,
+        settings: &settings,
+        files,
+        checkpoint_every,
     };
     match a.stage {
         Stage::One => {
-            let mut faces = Vec::new();
-            for (f, p) in sample.faces.iter().zip(poses) {
-                let warp = FaceWarp::new(&f.model, f.mapping.as_ref(), &frame)
-                    .with_context(|| format!("canonical positions of {}", f.name))?;
-                faces.push((warp, p));
-            }
-            let data = Stage1Data::new(faces)?;
-            let files = RunFiles {
-                label: "stage 1",
-                model: "generative.nn",
-                checkpoint: "checkpoint.nn",
-                loss: "loss.csv",
-                summary: "train.json",
-                rows: "elements",
-            };
+            let data = Stage1Data::new(warped(&sample, &frame, poses, FaceWarp::new)?)?;
             run_training::<GenerativeNets>(
-                a,
+                &run(config, &STAGE1_FILES),
                 &data,
                 data.pose_count(),
-                config,
-                frame,
-                &settings,
-                &files,
+                None,
             )
         }
         Stage::Displacement => {
-            let mut faces = Vec::new();
-            for (f, p) in sample.faces.iter().zip(poses) {
-                let warp = FaceWarp::vertices(&f.model, f.mapping.as_ref(), &frame)
-                    .with_context(|| format!("canonical vertex positions of {}", f.name))?;
-                faces.push((warp, p));
-            }
-            let data = DisplacementData::new(faces)?;
-            let files = RunFiles {
-                label: "displacement baseline",
-                model: SAMPLE_DISPLACEMENT,
-                checkpoint: "displacement-checkpoint.nn",
-                loss: "displacement-loss.csv",
-                summary: "displacement-train.json",
-                rows: "vertices",
-            };
+            let data = DisplacementData::new(warped(&sample, &frame, poses, FaceWarp::vertices)?)?;
             run_training::<DisplacementNets>(
-                a,
+                &run(config, &DISPLACEMENT_FILES),
                 &data,
                 data.pose_count(),
-                config,
-                frame,
-                &settings,
-                &files,
+                None,
+            )
+        }
+        Stage::Two => {
+            let init = a
+                .init
+                .clone()
+                .unwrap_or_else(|| a.sample.join(facesim::generative::SAMPLE_NETWORKS));
+            let nets = GenerativeNets::load(&init).with_context(|| {
+                format!("loading the networks to fine-tune, {}", init.display())
+            })?;
+            anyhow::ensure!(
+                nets.frame == frame,
+                "{} was trained for another canonical frame than this sample's",
+                init.display()
+            );
+            let config = Stage1Config {
+                architecture: nets.architecture,
+                ..config
+            };
+            let rig = match rig {
+                Some(r) => r,
+                None => crate::load_rig(&a.rig)?,
+            };
+            let stage2 = Stage2Settings {
+                solve: facesim::sim::SolveSettings {
+                    contact: a.contact,
+                    ..Stage2Settings::default().solve
+                },
+                ..Stage2Settings::default()
+            };
+            let start = Instant::now();
+            let faces = sample
+                .faces
+                .iter()
+                .zip(&poses)
+                .map(|(f, p)| {
+                    Stage2Face::from_sample(
+                        &rig,
+                        &f.model,
+                        f.mapping.as_ref(),
+                        &frame,
+                        p,
+                        a.contact,
+                    )
+                    .with_context(|| format!("stage-2 data of {}", f.name))
+                })
+                .collect::<Result<Vec<_>>>()?;
+            let data = Stage2Data::new(faces, stage2)?;
+            eprintln!(
+                "stage 2: targets and simulators of {} faces in {:.1} s; contact {}, init {}",
+                data.faces.len(),
+                start.elapsed().as_secs_f64(),
+                if a.contact { "on" } else { "off" },
+                init.display()
+            );
+            run_training::<Stage2Nets>(
+                &run(config, &STAGE2_FILES),
+                &data,
+                data.pose_count(),
+                Some(Stage2Nets(nets)),
             )
         }
     }
 }
+
+/// Stage 2's defaults where they differ from stage 1's: every element, a learning rate a
+/// tenth of stage 1's (the networks start trained: Adam's first steps move every weight by
+/// about the learning rate, and stage 1's 1e-3 would undo much of stage 1 before the
+/// moments settle), and iterations that fit the 60-minute budget on this machine.
+fn stage2_defaults() -> Stage1Config {
+    Stage1Config {
+        iterations: 800,
+        learning_rate: 1e-4,
+        elements_per_pose: 0,
+        ..Stage1Config::default()
+    }
+}
+
+const STAGE1_FILES: RunFiles = RunFiles {
+    label: "stage 1",
+    model: "generative.nn",
+    checkpoint: "checkpoint.nn",
+    loss: "loss.csv",
+    summary: "train.json",
+    rows: "elements",
+};
+
+const STAGE2_FILES: RunFiles = RunFiles {
+    label: "stage 2",
+    model: "generative-stage2.nn",
+    checkpoint: "stage2-checkpoint.nn",
+    loss: "stage2-loss.csv",
+    summary: "stage2-train.json",
+    rows: "elements (all)",
+};
+
+const DISPLACEMENT_FILES: RunFiles = RunFiles {
+    label: "displacement baseline",
+    model: SAMPLE_DISPLACEMENT,
+    checkpoint: "displacement-checkpoint.nn",
+    loss: "displacement-loss.csv",
+    summary: "displacement-train.json",
+    rows: "vertices",
+};
 
 /// The files one training run writes in OUT.
 struct RunFiles {
@@ -294,16 +416,24 @@ struct RunFiles {
     rows: &'static str,
 }
 
-/// The training loop of any model: resume, loss curve, progress bar, checkpoints, summary.
-fn run_training<M: TrainableNets>(
-    a: &TrainArgs,
-    data: &M::Data,
-    pose_count: usize,
+/// Everything a training run needs besides its data.
+struct RunSettings<'a> {
+    args: &'a TrainArgs,
     config: Stage1Config,
     frame: CanonicalFrame,
-    settings: &PoseSettings,
-    files: &RunFiles,
+    settings: &'a PoseSettings,
+    files: &'a RunFiles,
+    checkpoint_every: u64,
+}
+
+/// The training loop of any model: resume, loss curve, progress bar, checkpoints, summary.
+fn run_training<M: TrainableNets>(
+    run: &RunSettings<'_>,
+    data: &M::Data,
+    pose_count: usize,
+    init: Option<M>,
 ) -> Result<()> {
+    let (a, config, files) = (run.args, run.config, run.files);
     let ck_path = a.out.join(files.checkpoint);
     let csv_path = a.out.join(files.loss);
     let mut trainer = if a.resume {
@@ -316,7 +446,10 @@ fn run_training<M: TrainableNets>(
             "{} exists: pass --resume to continue that run, or remove it",
             ck_path.display()
         );
-        ModelTrainer::<M>::new(data, config, frame)?
+        match init {
+            Some(nets) => ModelTrainer::<M>::from_nets(data, config, nets)?,
+            None => ModelTrainer::<M>::new(data, config, run.frame)?,
+        }
     };
     // The loss curve: keep the rows before the resumed iteration.
     let mut csv = String::from(LOSS_CSV_HEADER);
@@ -363,6 +496,7 @@ fn run_training<M: TrainableNets>(
     let start = Instant::now();
     let mut step_ms = Vec::new();
     let mut last = None;
+    let mut skipped = 0;
     while !trainer.done() {
         let t = Instant::now();
         let row = trainer
@@ -370,14 +504,15 @@ fn run_training<M: TrainableNets>(
             .with_context(|| format!("iteration {}", trainer.iteration()))?;
         step_ms.push(t.elapsed().as_secs_f64() * 1e3);
         writeln!(csv_file, "{}", row.csv())?;
-        if row.iteration % 10 == 0 {
+        skipped += row.parts.skipped;
+        if row.iteration % 10 == 0 || config.elements_per_pose == 0 {
             bar.set_message(format!(
-                "fit {:.4} jaw {:.4} cm² total {:.4}",
+                "fit {:.4} jaw {:.4} cm² total {:.4}, {skipped} poses skipped",
                 row.parts.fit, row.parts.jaw, row.parts.total
             ));
         }
         bar.inc(1);
-        if trainer.iteration() % a.checkpoint_every == 0 || trainer.done() {
+        if trainer.iteration() % run.checkpoint_every == 0 || trainer.done() {
             csv_file.flush()?;
             save_checkpoint(&trainer.checkpoint(), &ck_path)?;
         }
@@ -395,7 +530,9 @@ fn run_training<M: TrainableNets>(
     let summary = serde_json::json!({
         "stage": files.label,
         "config": config,
-        "pose_settings": settings,
+        "data_settings": M::data_settings(data),
+        "pose_settings": run.settings,
+        "skipped_poses": skipped,
         "poses": pose_count,
         "iterations_run": step_ms.len(),
         "seconds": seconds,
@@ -415,7 +552,7 @@ fn run_training<M: TrainableNets>(
     );
     if let Some(r) = last {
         println!(
-            "last batch: fit {:.5}, jaw {:.5} cm², act {:.4}, Π softplus(c) {:.3}, total {:.5}",
+            "last batch: fit {:.5}, jaw {:.5} cm², act {:.4}, Π softplus(c) {:.3}, total {:.5}; {skipped} poses skipped in all",
             r.parts.fit, r.parts.jaw, r.parts.act, r.parts.lip, r.parts.total
         );
     }

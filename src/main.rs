@@ -66,9 +66,9 @@ enum Command {
         quality: facesim::sim::Quality,
     },
     /// Train the expression/style networks (`--stage 1`: fit the per-pose actuations and jaw
-    /// motions fitted to the rig's targets) or the displacement baseline (`--stage
-    /// displacement`: the same poses' vertex displacements); the data is made once and cached
-    /// under OUT/poses.
+    /// motions fitted to the rig's targets; `--stage 2`: fine-tune them through the simulator
+    /// against the rig's skin) or the displacement baseline (`--stage displacement`: the same
+    /// poses' vertex displacements); the data is made once and cached under OUT/poses.
     Train(cli_generative::TrainArgs),
     /// Simulate held-out codes with trained networks and with the actuation basis (and pose
     /// them with a displacement baseline) and report the skin's vertex error against the rig's

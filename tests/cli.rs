@@ -152,3 +152,53 @@ fn train_displacement_then_eval_with_it() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("not a displacement-baseline file"));
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// Stage 2 end to end: `train --stage 2` (the bundled stage-1 networks, 2 iterations of 2
+/// poses) writes its networks, checkpoint and loss curve with the skipped-pose column, and the
+/// networks it wrote load in `eval`; a second run refuses to overwrite the checkpoint.
+#[test]
+fn train_stage2_then_eval_with_it() {
+    let rig =
+        std::env::var("FACESIM_RIG_DIR").unwrap_or_else(|_| "../shared/data/ict-facekit".into());
+    let dir = std::env::temp_dir().join(format!("facesim-stage2-{}", std::process::id()));
+    std::fs::remove_dir_all(&dir).ok();
+    let train = || {
+        facesim()
+            .args(["train", "--stage", "2", "--sample", "sample_models/ict"])
+            .args(["--init", "sample_models/ict/generative.nn", "--rig", &rig])
+            .args(["--iterations", "2", "--batch", "2", "--combinations", "0"])
+            .arg("--out")
+            .arg(&dir)
+            .output()
+            .unwrap()
+    };
+    let out = train();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let model = dir.join("generative-stage2.nn");
+    assert!(model.exists() && dir.join("stage2-checkpoint.nn").exists());
+    let csv = std::fs::read_to_string(dir.join("stage2-loss.csv")).unwrap();
+    assert_eq!(csv.lines().count(), 3, "{csv}");
+    assert!(csv.lines().next().unwrap().ends_with(",skipped_poses"));
+    assert!(!train().status.success(), "the checkpoint exists");
+
+    let out = facesim()
+        .args(["eval", "--sample", "sample_models/ict", "--rig", &rig])
+        .args(["--held-out", "1", "--model"])
+        .arg(&model)
+        .arg("--out")
+        .arg(dir.join("eval"))
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let table = String::from_utf8(out.stdout).unwrap();
+    assert!(table.contains("| neutral | networks | 1/1 |"), "{table}");
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -77,6 +77,10 @@ pub struct LossParts {
     /// Π softplus(cᵢ) (before λ_lip).
     pub lip: f64,
     pub total: f64,
+    /// Poses of the batch left out of the loss (stage 2: solves or adjoints that did not
+    /// converge; always 0 in stage 1).
+    #[serde(default)]
+    pub skipped: usize,
 }
 
 /// Per-network gradients in [`super::nets::NET_NAMES`] order.
@@ -139,6 +143,56 @@ pub fn batch_loss(
             batch.targets.len()
         )));
     }
+    let objective = Objective::Fit {
+        targets: &batch.targets,
+        jaw: &batch.jaw,
+    };
+    networks_loss(
+        nets,
+        &batch.codes,
+        &batch.x,
+        &batch.counts,
+        &objective,
+        w,
+        ws,
+        grads,
+        par,
+    )
+}
+
+/// What N_A's rows and N_B's outputs are compared with.
+pub(crate) enum Objective<'a> {
+    /// Stage 1: canonical target logs per row and fitted jaws per pose (`L_fit`, `L_jaw`).
+    Fit {
+        targets: &'a [[f64; 6]],
+        jaw: &'a [[f64; 6]],
+    },
+    /// Stage 2 ([`super::stage2`]): an outer loss already differentiated by the simulator:
+    /// `∂L/∂y` per row of N_A's output (canonical log, stored values) and `∂L/∂[θ; t]` per
+    /// pose, and that loss's value (reported as `fit`; `jaw` is 0).
+    Gradient {
+        logs: &'a [[f64; 6]],
+        jaw: &'a [[f64; 6]],
+        value: f64,
+    },
+}
+
+/// The loss of the rows `x` (pose `b`'s `counts[b]` rows after those of poses < b) against
+/// `objective`, plus `λ_act·L_act` and `λ_lip·Π softplus(cᵢ)`; **adds** each network's
+/// parameter gradient into `grads`. The one backward pass of both training stages.
+#[allow(clippy::too_many_arguments)] // the batch's parts and the pass's scratch
+pub(crate) fn networks_loss(
+    nets: &GenerativeNets,
+    codes_in: &[Codes],
+    x: &Mat<f64>,
+    counts: &[usize],
+    objective: &Objective<'_>,
+    w: &LossWeights,
+    ws: &mut LossWorkspace,
+    grads: &mut Grads,
+    par: Par,
+) -> Result<LossParts, GenerativeError> {
+    let rows = x.nrows();
     let arch = &nets.architecture;
     let [tape_e, tape_s, tape_b] = &mut ws.tapes;
 
@@ -147,8 +201,8 @@ pub fn batch_loss(
         &nets.expression,
         &nets.style,
         arch,
-        &batch.codes,
-        &batch.counts,
+        codes_in,
+        counts,
         tape_e,
         tape_s,
     )?;
@@ -159,7 +213,7 @@ pub fn batch_loss(
     let parts: Mutex<Vec<(usize, f64, f64)>> = Mutex::new(Vec::new());
     let [grad_e, grad_s, grad_a, grad_b] = grads;
     nets.actuation.gradient_chunked(
-        batch.x.as_ref(),
+        x.as_ref(),
         Some(&codes),
         Pass::Gradient,
         &mut ws.chunked,
@@ -169,12 +223,17 @@ pub fn batch_loss(
             let y = tape.output().expect("outputs");
             let (mut fit, mut act) = (0.0, 0.0);
             for (i, g) in range.clone().enumerate() {
-                let t = &batch.targets[g];
                 for k in 0..6 {
-                    let r = y[(i, k)] - t[k];
-                    fit += FROBENIUS[k] * r * r;
                     act += FROBENIUS[k] * y[(i, k)] * y[(i, k)];
-                    dy[(i, k)] = 2.0 * FROBENIUS[k] * (r + lambda_act * y[(i, k)]) * inv_r;
+                    let reg = 2.0 * FROBENIUS[k] * lambda_act * y[(i, k)] * inv_r;
+                    dy[(i, k)] = match objective {
+                        Objective::Fit { targets, .. } => {
+                            let r = y[(i, k)] - targets[g][k];
+                            fit += FROBENIUS[k] * r * r;
+                            2.0 * FROBENIUS[k] * r * inv_r + reg
+                        }
+                        Objective::Gradient { logs, .. } => logs[g][k] + reg,
+                    };
                 }
             }
             parts.lock().expect("no panics while held").push((
@@ -187,20 +246,31 @@ pub fn batch_loss(
     )?;
     let mut parts = parts.into_inner().expect("no panics while held");
     parts.sort_by_key(|p| p.0);
-    let fit: f64 = parts.iter().map(|p| p.1).sum();
     let act: f64 = parts.iter().map(|p| p.2).sum();
     let mut du: Vec<f64> = ws.chunked.code_grad().to_vec();
 
     // N_B: jaw term.
-    let jaw = jaw_term(
-        &nets.jaw,
-        &u,
-        &batch.jaw,
-        w.jaw_lever_cm,
-        tape_b,
-        grad_b,
-        &mut du,
-    )?;
+    let (fit, jaw) = match objective {
+        Objective::Fit { jaw: targets, .. } => (
+            parts.iter().map(|p| p.1).sum(),
+            jaw_term(
+                &nets.jaw,
+                &u,
+                targets,
+                w.jaw_lever_cm,
+                tape_b,
+                grad_b,
+                &mut du,
+            )?,
+        ),
+        Objective::Gradient { jaw, value, .. } => {
+            nets.jaw
+                .forward(u.as_ref(), None, Pass::Gradient, tape_b, Par::Seq)?;
+            let dyj = Mat::from_fn(u.nrows(), 6, |b, k| jaw[b][k]);
+            jaw_backward(&nets.jaw, &u, dyj, tape_b, grad_b, &mut du)?;
+            (*value, 0.0)
+        }
+    };
 
     // tanh and the encoders.
     encode_backward(
@@ -224,6 +294,7 @@ pub fn batch_loss(
         act,
         lip,
         total: fit + jaw + lambda_act * act + lip_weighted,
+        skipped: 0,
     })
 }
 
@@ -290,7 +361,7 @@ pub(crate) fn jaw_term(
     grad: &mut [f64],
     du: &mut [f64],
 ) -> Result<f64, GenerativeError> {
-    let (b_count, cd) = (u.nrows(), u.ncols());
+    let b_count = u.nrows();
     jaw_net.forward(u.as_ref(), None, Pass::Gradient, tape, Par::Seq)?;
     let yj = tape.output().expect("outputs");
     let r2 = jaw_lever_cm * jaw_lever_cm;
@@ -302,6 +373,21 @@ pub(crate) fn jaw_term(
         jaw += jw[k] * r * r * inv_b;
         2.0 * jw[k] * r * inv_b
     });
+    jaw_backward(jaw_net, u, dyj, tape, grad, du)?;
+    Ok(jaw)
+}
+
+/// N_B backward from its output gradient `dyj` (B × 6) after a gradient pass on `tape`;
+/// **adds** its parameter gradient into `grad` and its input gradient into `du`.
+fn jaw_backward(
+    jaw_net: &Mlp<f64>,
+    u: &Mat<f64>,
+    dyj: Mat<f64>,
+    tape: &mut Tape<f64>,
+    grad: &mut [f64],
+    du: &mut [f64],
+) -> Result<(), GenerativeError> {
+    let (b_count, cd) = (u.nrows(), u.ncols());
     jaw_net.backward(tape, Some(dyj.as_ref()), None, grad, Par::Seq)?;
     let dub = tape.input_grad().expect("after backward");
     for b in 0..b_count {
@@ -309,5 +395,5 @@ pub(crate) fn jaw_term(
             du[b * cd + k] += dub[(b, k)];
         }
     }
-    Ok(jaw)
+    Ok(())
 }

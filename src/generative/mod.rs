@@ -11,6 +11,7 @@
 //!   [`crate::drive::fit`] on the rig's targets, cached on disk.
 //! - [`loss`]: the stage-1 loss and its gradient through all four networks.
 //! - [`train`]: the stage-1 training loop (Adam, linear decay, checkpoints, resume).
+//! - [`stage2`]: stage 2, fine-tuning through the simulator (surface loss, sensitivities).
 //! - [`displacement`]: the paper's baseline, a displacement network of N_A's shape trained
 //!   on the same poses (no physics).
 //! - [`transfer`]: style transfer without canonical space (A's actuations on B's elements).
@@ -25,9 +26,12 @@ pub mod face;
 pub mod loss;
 pub mod metrics;
 pub mod nets;
+pub mod stage2;
 pub mod train;
 pub mod transfer;
 
+#[cfg(test)]
+mod stage2_tests;
 #[cfg(test)]
 pub(crate) mod tests;
 
@@ -36,6 +40,7 @@ pub use displacement::{DisplacementData, DisplacementFace, DisplacementNets};
 pub use eval::{EvalReport, EvalRow, evaluate};
 pub use face::{GenerativeFace, SAMPLE_NETWORKS, load_sample_networks, sample_actuations};
 pub use nets::{Architecture, CanonicalFrame, GenerativeNets};
+pub use stage2::{Stage2Data, Stage2Face, Stage2Nets, Stage2Settings, Stage2Trainer};
 pub use train::{
     LossRow, ModelTrainer, Stage1Config, Stage1Data, TrainableNets, train_model, train_stage1,
 };

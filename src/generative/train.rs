@@ -204,15 +204,16 @@ pub struct LossRow {
 }
 
 /// The CSV header of the loss curve.
-pub const LOSS_CSV_HEADER: &str = "iteration,learning_rate,fit,jaw_cm2,act,lipschitz_product,total";
+pub const LOSS_CSV_HEADER: &str =
+    "iteration,learning_rate,fit,jaw_cm2,act,lipschitz_product,total,skipped_poses";
 
 impl LossRow {
     /// One CSV line (no newline).
     pub fn csv(&self) -> String {
         let p = &self.parts;
         format!(
-            "{},{:e},{:e},{:e},{:e},{:e},{:e}",
-            self.iteration, self.learning_rate, p.fit, p.jaw, p.act, p.lip, p.total
+            "{},{:e},{:e},{:e},{:e},{:e},{:e},{}",
+            self.iteration, self.learning_rate, p.fit, p.jaw, p.act, p.lip, p.total, p.skipped
         )
     }
 }
@@ -236,6 +237,11 @@ pub trait TrainableNets: Sized {
     fn networks_mut(&mut self) -> Vec<&mut Mlp<f64>>;
     fn to_checkpoint(&self) -> Checkpoint;
     fn from_checkpoint(ck: &Checkpoint) -> Result<Self, GenerativeError>;
+    /// Settings of the data that a resumed run must share with the saved one (beyond the
+    /// [`Stage1Config`]), as a string; `None` when the data has none.
+    fn data_settings(_data: &Self::Data) -> Option<String> {
+        None
+    }
     /// The loss of iteration `it`'s batch; **adds** each network's gradient into `grads`.
     fn batch_loss(
         &self,
@@ -310,6 +316,7 @@ pub type Trainer<'a> = ModelTrainer<'a, GenerativeNets>;
 
 const CONFIG_KEY: &str = "stage1_config";
 const ITERATION_KEY: &str = "stage1_iteration";
+const DATA_SETTINGS_KEY: &str = "data_settings";
 
 impl<'a, M: TrainableNets> ModelTrainer<'a, M> {
     /// A fresh run: networks initialized from the seed.
@@ -319,6 +326,16 @@ impl<'a, M: TrainableNets> ModelTrainer<'a, M> {
         frame: CanonicalFrame,
     ) -> Result<Self, GenerativeError> {
         let nets = M::init(config.architecture, frame, config.seed)?;
+        Self::from_nets(data, config, nets)
+    }
+
+    /// A fresh run (fresh optimizers, iteration 0) from given networks: fine-tuning, such as
+    /// stage 2 from the stage-1 weights.
+    pub fn from_nets(
+        data: &'a M::Data,
+        config: Stage1Config,
+        nets: M,
+    ) -> Result<Self, GenerativeError> {
         let adams = nets
             .networks()
             .iter()
@@ -347,6 +364,12 @@ impl<'a, M: TrainableNets> ModelTrainer<'a, M> {
         if saved != config {
             return Err(GenerativeError::Checkpoint(format!(
                 "the checkpoint was made with other settings: {saved:?}, now {config:?}"
+            )));
+        }
+        let (saved, now) = (meta.get(DATA_SETTINGS_KEY), M::data_settings(data));
+        if saved != now.as_ref() {
+            return Err(GenerativeError::Checkpoint(format!(
+                "the checkpoint was made with other data settings: {saved:?}, now {now:?}"
             )));
         }
         let iteration: u64 = meta
@@ -460,6 +483,9 @@ impl<'a, M: TrainableNets> ModelTrainer<'a, M> {
             serde_json::to_string(&self.config).expect("serializable"),
         );
         meta.insert(ITERATION_KEY.into(), self.iteration.to_string());
+        if let Some(s) = M::data_settings(self.data) {
+            meta.insert(DATA_SETTINGS_KEY.into(), s);
+        }
         ck
     }
 }

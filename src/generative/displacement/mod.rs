@@ -253,6 +253,7 @@ impl DisplacementNets {
             act: 0.0,
             lip,
             total: fit + jaw + lip_weighted,
+            skipped: 0,
         })
     }
 }
