@@ -254,13 +254,15 @@ pub fn sample_actuations(
 /// The trained networks' file name in a sample folder (`sample_models/ict/generative.nn`).
 pub const SAMPLE_NETWORKS: &str = "generative.nn";
 
-/// The sample's trained networks (its [`SAMPLE_NETWORKS`] file) driving each of its faces, in
-/// the sample's order; `None` when the sample has no networks. What the session loads to
-/// drive the faces with the networks instead of the actuation bases.
+/// The sample's trained networks in its file `file` ([`SAMPLE_NETWORKS`], or
+/// [`super::stage2::SAMPLE_STAGE2_NETWORKS`] for the stage-2 weights) driving each of its
+/// faces, in the sample's order; `None` when the sample has no such file. What the session
+/// loads to drive the faces with the networks instead of the actuation bases.
 pub fn load_sample_networks(
     sample: &Sample,
+    file: &str,
 ) -> Result<Option<Vec<Arc<dyn ActuationModel>>>, GenerativeError> {
-    let path = sample.dir.join(SAMPLE_NETWORKS);
+    let path = sample.dir.join(file);
     if !path.exists() {
         return Ok(None);
     }

@@ -504,7 +504,7 @@ fn style_metric_separates_style_from_geometry() {
 #[test]
 fn bundled_networks_drive_every_sample_face() {
     let s = sample();
-    let models = super::load_sample_networks(s)
+    let models = super::load_sample_networks(s, super::SAMPLE_NETWORKS)
         .unwrap()
         .expect("sample_models/ict/generative.nn");
     assert_eq!(models.len(), s.faces.len());

@@ -16,8 +16,22 @@ pub enum Actuation {
     #[default]
     Basis,
     /// The trained expression/style networks through each identity's φ (the implicit model,
-    /// `generative.nn` of the sample).
+    /// `generative.nn` of the sample: stage 1).
     Networks,
+    /// The same networks fine-tuned through the simulator (`generative-stage2.nn`): closer to
+    /// the rig's skin, lips pressed harder into each other (contact keeps them apart).
+    NetworksStage2,
+}
+
+impl Actuation {
+    /// The sample's network file it drives with, if any.
+    fn network_file(self) -> Option<&'static str> {
+        match self {
+            Actuation::Basis => None,
+            Actuation::Networks => Some(facesim::generative::SAMPLE_NETWORKS),
+            Actuation::NetworksStage2 => Some(facesim::generative::stage2::SAMPLE_STAGE2_NETWORKS),
+        }
+    }
 }
 
 /// A session on every face of the sample at `dir`, driven by `actuation`, with φ's heatmaps
@@ -29,14 +43,13 @@ pub fn open_sample_session(dir: &Path, quality: Quality, actuation: Actuation) -
         .field_sources()
         .context("computing the mapping heatmaps")?;
     let mut faces = sample.session_faces();
-    if actuation == Actuation::Networks {
-        let models = facesim::generative::face::load_sample_networks(&sample)
+    if let Some(file) = actuation.network_file() {
+        let models = facesim::generative::face::load_sample_networks(&sample, file)
             .context("loading the sample's networks")?
             .with_context(|| {
                 format!(
-                    "{} has no trained networks ({}); train them with `facesim train --stage 1`",
-                    dir.display(),
-                    facesim::generative::face::SAMPLE_NETWORKS
+                    "{} has no trained networks ({file}); train them with `facesim train`",
+                    dir.display()
                 )
             })?;
         for (face, model) in faces.iter_mut().zip(models) {

@@ -62,6 +62,13 @@ fn the_networks_drive_the_face_from_the_slider() {
     jaw_slider_changes_the_face(session);
 }
 
+/// And with the stage-2 networks (`--actuation networks-stage2`).
+#[test]
+fn the_stage2_networks_drive_the_face_from_the_slider() {
+    let session = open_sample(Actuation::NetworksStage2);
+    jaw_slider_changes_the_face(session);
+}
+
 fn jaw_slider_changes_the_face(session: Arc<dyn SessionHandle>) {
     let mut harness = Harness::builder()
         .with_size(egui::vec2(1200.0, 800.0))
