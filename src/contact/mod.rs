@@ -6,7 +6,7 @@
 //! Laid out like ipc-toolkit, one concept per module, data flowing in this order:
 //!
 //! ```text
-//! ContactMesh + positions ──► broad phase (geometry::bvh over d̂-inflated or swept boxes)
+//! ContactMesh + positions ──► broad phase (candidates::tree over d̂-inflated or swept boxes)
 //!     ──► candidates (point–triangle and edge–edge pairs)
 //!     ──► collisions (the active set: pairs with d < d̂, their distance type, mollifier)
 //!     ──► potential (κ Σ m·b(d², d̂²): value, gradient, Hessian blocks, PSD-projected blocks)

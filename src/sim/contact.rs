@@ -15,15 +15,16 @@
 //!   step: `facesim bench contact` measures both (the low-rank update is the default because
 //!   it is faster).
 //! - **Line search**: each step's candidate pairs come from a Verlet list
-//!   ([`crate::contact::VerletList`]: pairs with their distance where the list was built,
-//!   rebuilt when a vertex leaves its slack, or built from boxes swept along a long step),
-//!   filtered to the pairs whose distance minus their relative motion along the step is
-//!   below d̂ — on the face a few hundred of the ~10⁵ pairs whose boxes overlap. Additive CCD
+//!   ([`crate::contact::VerletList`]: pairs with their distance where the list was built;
+//!   a step leaving the slack adds the pairs beyond the list's reach that the relative
+//!   motion since then can bring close; rebuilt once a vertex has moved far), filtered to
+//!   the pairs whose distance minus their relative motion is below d̂ — on the face a few
+//!   thousand of the ~10⁵ pairs whose boxes overlap. Additive CCD
 //!   over them caps the step so no pair ever reaches distance 0, and the barrier of every
 //!   trial is evaluated over the same pairs (so no pair that comes within d̂ during the step
-//!   is missed). The teeth's broad-phase trees ([`crate::contact::FixedPrimitives`]) are
-//!   built once per solve (the bones are fixed during it); only the soft primitives' trees
-//!   are rebuilt.
+//!   is missed). The broad-phase trees ([`crate::contact::FixedPrimitives`]) are prepared
+//!   once per solve: the teeth's (the bones are fixed during it) and the layout of the soft
+//!   primitives' trees, whose boxes are refit at every build.
 //! - **Stiffness**: κ starts where the barrier gradient balances the elastic one (ipc-toolkit's
 //!   rule, with the mean diagonal of `L` over the contact region as the stiffness scale) and
 //!   doubles while the closest pair keeps approaching at a tiny distance.
@@ -54,6 +55,11 @@ const MAX_CONTACT_MOVE: f64 = 0.1;
 /// preset): 0.5 and 1 are alike, 2 is 1.5× and 3.5 or 6 are 4× slower per frame (the
 /// list's reach `d̂ + 2δ` holds many more neighbouring pairs to enumerate).
 const VERLET_SLACK: f64 = 1.0;
+/// How far (in units of the slack δ) a vertex may have moved from where the Verlet list was
+/// built before a step that leaves the slack rebuilds it rather than adding the pairs
+/// beyond the list's reach from the relative motion ([`VerletList::near_beyond`]).
+const VERLET_REUSE: f64 = 8.0;
+
 /// Advances per pair in the additive CCD; a capped pair keeps the (safe) time it reached.
 const CCD_MAX_ITERATIONS: u64 = 200;
 
@@ -330,10 +336,12 @@ impl<'a> ContactSolve<'a> {
     ///
     /// Candidates are kept between steps (a Verlet list): they are built at positions `y₀`
     /// (pairs closer than `d̂ + 2δ`, with their distances), which covers every pair that can
-    /// come within d̂ while each vertex stays within `δ` of `y₀`. A step is checked against
-    /// that and the list is rebuilt only when some vertex would leave its slack; a step
-    /// longer than δ gets a list of its own from swept boxes. CCD and the trials' barrier
-    /// then use only the list's pairs that can come within d̂ along this step.
+    /// come within d̂ while each vertex stays within `δ` of `y₀`. A step within that uses the
+    /// list's pairs that can come within d̂ along it; a step leaving it adds the pairs beyond
+    /// the list's reach that the relative motion since `y₀` can bring within d̂
+    /// ([`VerletList::near_beyond`]: neighbours moving together are never visited). The list
+    /// is rebuilt when some vertex has moved farther than [`VERLET_REUSE`]·δ from `y₀`. CCD
+    /// and the trials' barrier then use only those pairs.
     pub(crate) fn max_step(&mut self, d: &[f64]) -> Result<f64, ContactError> {
         self.model.face.displacement(d, &mut self.dy);
         let longest = self
@@ -350,22 +358,28 @@ impl<'a> ContactSolve<'a> {
         let mesh = self.model.face.mesh();
         let dhat = self.potential.dhat;
         let t = Instant::now();
-        let valid = self
-            .verlet
-            .as_ref()
-            .is_some_and(|list| list.covers(&self.y, &swept));
-        if !valid {
-            let slack = VERLET_SLACK * dhat;
-            self.verlet = Some(if cap * longest <= slack {
-                VerletList::build(mesh, &self.fixed, &self.y, dhat, slack)?
-            } else {
-                // A long step: a list for this step alone (swept boxes grown by d̂).
-                VerletList::build_swept(mesh, &self.fixed, &self.y, &swept, dhat)?
-            });
+        let slack = VERLET_SLACK * dhat;
+        // A step longer than the slack keeps the list and adds the pairs beyond its reach
+        // (cheap while the surface has moved smoothly since the list was built) until some
+        // vertex has gone farther than VERLET_REUSE·δ. A short step leaving the slack
+        // rebuilds the list: the steps after it are likely covered again (measured: adding
+        // the pairs beyond at every short step made the final preset 1.5× slower).
+        let long_step = cap * longest > slack;
+        let rebuild = self.verlet.as_ref().is_none_or(|list| {
+            !list.covers(&self.y, &swept)
+                && !(long_step && list.moved_within(&self.y, &swept, VERLET_REUSE * slack))
+        });
+        if rebuild {
+            self.verlet = Some(VerletList::build(mesh, &self.fixed, &self.y, dhat, slack)?);
             self.stats.candidate_builds += 1;
         }
         let list = self.verlet.as_ref().expect("built above");
-        self.candidates = list.near(mesh, &self.y, &swept, dhat)?;
+        self.candidates = if list.covers(&self.y, &swept) {
+            list.near(mesh, &self.y, &swept, dhat)?
+        } else {
+            list.near_beyond(mesh, &self.fixed, &self.y, &swept, dhat)?
+                .0
+        };
         self.stats.candidate_pairs += self.candidates.len();
         self.stats.broad_phase_time += t.elapsed();
         let t = Instant::now();

@@ -7,7 +7,10 @@ use rayon::prelude::*;
 use super::ContactError;
 use super::math::vertex;
 use super::mesh::ContactMesh;
-use crate::geometry::bvh::{Box3, BoxTree};
+use crate::geometry::bvh::Box3;
+use tree::{Bound, Fitted, Layout, pairs};
+
+mod tree;
 use nalgebra::Point3;
 
 /// A vertex and a face that does not contain it.
@@ -31,16 +34,13 @@ pub struct Candidates {
     pub edge_edge: Vec<EdgeEdgeCandidate>,
 }
 
-/// Vertices per parallel task.
-const CHUNK: usize = 256;
-
 impl Candidates {
     /// Pairs closer than `inflation` (cm) may be missed never: every primitive's box at `x`
     /// is grown by `inflation/2` (for the barrier, `inflation = d̂`).
     pub fn build(mesh: &ContactMesh, x: &[f64], inflation: f64) -> Result<Self, ContactError> {
         mesh.check_positions(x)?;
         check_inflation(inflation)?;
-        Ok(Self::from_boxes(mesh, |ids: &[u32]| {
+        Ok(Self::from_boxes(mesh, x, |ids: &[u32]| {
             Box3::around_iter(
                 ids.iter().map(|&i| Point3::from(vertex(x, i))),
                 0.5 * inflation,
@@ -59,7 +59,7 @@ impl Candidates {
         inflation: f64,
     ) -> Result<Self, ContactError> {
         check_swept(mesh, x, dx, inflation)?;
-        Ok(Self::from_boxes(mesh, swept_box(x, dx, inflation)))
+        Ok(Self::from_boxes(mesh, x, swept_box(x, dx, inflation)))
     }
 
     /// Total number of pairs.
@@ -71,124 +71,111 @@ impl Candidates {
         self.len() == 0
     }
 
-    fn from_boxes(mesh: &ContactMesh, box_of: impl Fn(&[u32]) -> Box3 + Sync) -> Self {
+    fn from_boxes(mesh: &ContactMesh, x: &[f64], box_of: impl Fn(&[u32]) -> Box3 + Sync) -> Self {
         // Fixed primitives built from the same boxes: nothing extra to grow by.
         let fixed = FixedTrees::new(mesh, &box_of);
-        Self::from_split(mesh, &box_of, &fixed, 0.0)
+        let moving = MovingLayouts::new(mesh, x);
+        Self::from_split(
+            mesh,
+            &moving,
+            &box_of,
+            &fixed,
+            &|a: &Box3, b: &Box3| a.overlaps(b),
+            &|a: &Box3, b: &Box3| a.overlaps(b),
+        )
     }
 
-    /// The broad phase over the moving primitives (`box_of`, rebuilt) and the fixed ones
-    /// (`fixed`, whose boxes are grown by `extra` more at query time).
+    /// The broad phase over the moving primitives (bounded by `bound_of`, their trees refit
+    /// on `moving`'s layouts) and the fixed ones (`fixed`): every pair whose bounds pass
+    /// `test` (moving against moving) or `test_fixed` (moving against a fixed box) and may
+    /// touch.
     ///
     /// With groups split into touch-all (soft tissue) and touch-only-those (rigid pieces), a
     /// primitive is *open* when all its vertices touch all, *fixed* when none does (it can
     /// only meet open primitives), *mixed* otherwise (it can only meet open ones too). Pairs
     /// are then open–open and open–mixed (the moving trees), open–fixed (the fixed trees).
     /// Without such a split every primitive is open and nothing is fixed.
-    fn from_split(
+    fn from_split<B: Bound>(
         mesh: &ContactMesh,
-        box_of: &(impl Fn(&[u32]) -> Box3 + Sync),
+        moving: &MovingLayouts,
+        bound_of: &(impl Fn(&[u32]) -> B + Sync),
         fixed: &FixedTrees,
-        extra: f64,
+        test: &(impl Fn(&B, &B) -> bool + Sync),
+        test_fixed: &(impl Fn(&B, &Box3) -> bool + Sync),
     ) -> Self {
         let split = mesh.groups_split_by_universal();
         let universal = |v: u32| !split || mesh.touches_all(v);
         let faces = mesh.faces();
         let edges = mesh.edges();
-        // Moving primitives: at least one touch-all vertex (ascending ids).
-        let moving_faces: Vec<u32> = (0..faces.len() as u32)
-            .filter(|&f| faces[f as usize].iter().any(|&v| universal(v)))
-            .collect();
-        let moving_edges: Vec<u32> = (0..edges.len() as u32)
-            .filter(|&e| edges[e as usize].iter().any(|&v| universal(v)))
-            .collect();
-        let face_boxes: Vec<Box3> = moving_faces
+        let vertex_bounds: Vec<B> = moving
+            .vertices
             .par_iter()
-            .map(|&f| box_of(&faces[f as usize]))
+            .map(|v| bound_of(std::slice::from_ref(v)))
             .collect();
-        let edge_boxes: Vec<Box3> = moving_edges
+        let face_bounds: Vec<B> = moving
+            .faces
             .par_iter()
-            .map(|&e| box_of(&edges[e as usize]))
+            .map(|&f| bound_of(&faces[f as usize]))
             .collect();
-        let face_tree = BoxTree::new(&face_boxes);
-        let edge_tree = BoxTree::new(&edge_boxes);
-        let has_fixed = !fixed.is_empty();
-        let map = |ids: &[u32], out: &mut [u32]| {
-            for i in out.iter_mut() {
-                *i = ids[*i as usize];
-            }
+        let edge_bounds: Vec<B> = moving
+            .edges
+            .par_iter()
+            .map(|&e| bound_of(&edges[e as usize]))
+            .collect();
+        let (vertex_nodes, face_nodes, edge_nodes) = (
+            moving.vertex.fit(&vertex_bounds),
+            moving.face.fit(&face_bounds),
+            moving.edge.fit(&edge_bounds),
+        );
+        let fitted = |layout, nodes, items| Fitted {
+            layout,
+            nodes,
+            items,
         };
+        let vertex_tree = fitted(&moving.vertex, &vertex_nodes, &vertex_bounds);
+        let face_tree = fitted(&moving.face, &face_nodes, &face_bounds);
+        let edge_tree = fitted(&moving.edge, &edge_nodes, &edge_bounds);
+        let flipped = |a: &Box3, b: &B| test_fixed(b, a);
 
-        // Point–triangle, from the touch-all vertices: moving faces and fixed faces.
-        let universal_vertices: Vec<u32> = mesh
-            .vertices()
-            .iter()
-            .copied()
-            .filter(|&v| universal(v))
-            .collect();
+        // Point–triangle: touch-all vertices against moving and fixed faces, fixed vertices
+        // against open faces.
         let keep_pt = |v: u32, f: u32| {
             let tri = faces[f as usize];
             !tri.contains(&v)
                 && tri.iter().all(|&t| mesh.can_touch(v, t))
                 && !mesh.excludes_point_triangle(v, f)
         };
-        let mut point_triangle: Vec<PointTriangleCandidate> = universal_vertices
-            .par_chunks(CHUNK)
-            .flat_map_iter(|verts| {
-                let (mut found, mut more) = (Vec::new(), Vec::new());
-                let mut out = Vec::new();
-                for &v in verts {
-                    let b = box_of(std::slice::from_ref(&v));
-                    face_tree.overlapping(&b, &mut found);
-                    map(&moving_faces, &mut found);
-                    if has_fixed {
-                        fixed.face_tree.overlapping(&b.grown(extra), &mut more);
-                        map(&fixed.faces, &mut more);
-                        found.append(&mut more);
-                        found.sort_unstable();
-                    }
-                    out.extend(
-                        found
-                            .iter()
-                            .filter(|&&f| keep_pt(v, f))
-                            .map(|&f| PointTriangleCandidate { vertex: v, face: f }),
-                    );
+        let push_pt = |v: u32, f: u32, out: &mut Vec<PointTriangleCandidate>| {
+            if keep_pt(v, f) {
+                out.push(PointTriangleCandidate { vertex: v, face: f });
+            }
+        };
+        let open_face = |f: u32| faces[f as usize].iter().all(|&v| universal(v));
+        let mut point_triangle = pairs(vertex_tree, face_tree, false, test, &|i, j, out| {
+            push_pt(moving.vertices[i as usize], moving.faces[j as usize], out)
+        });
+        point_triangle.extend(pairs(
+            vertex_tree,
+            fixed.face.fitted(),
+            false,
+            test_fixed,
+            &|i, j, out| push_pt(moving.vertices[i as usize], fixed.faces[j as usize], out),
+        ));
+        point_triangle.extend(pairs(
+            fixed.vertex.fitted(),
+            face_tree,
+            false,
+            &flipped,
+            &|i, j, out| {
+                let f = moving.faces[j as usize];
+                if open_face(f) {
+                    push_pt(fixed.vertices[i as usize], f, out);
                 }
-                out
-            })
-            .collect();
-        // Fixed vertices against open faces, from the faces' side, merged in.
-        if has_fixed && !fixed.vertices.is_empty() {
-            let open_faces: Vec<(u32, Box3)> = moving_faces
-                .iter()
-                .zip(&face_boxes)
-                .filter(|(f, _)| faces[**f as usize].iter().all(|&v| universal(v)))
-                .map(|(&f, b)| (f, *b))
-                .collect();
-            let mut cross: Vec<PointTriangleCandidate> = open_faces
-                .par_chunks(CHUNK)
-                .flat_map_iter(|chunk| {
-                    let mut found = Vec::new();
-                    let mut out = Vec::new();
-                    for (f, b) in chunk {
-                        fixed.vertex_tree.overlapping(&b.grown(extra), &mut found);
-                        map(&fixed.vertices, &mut found);
-                        out.extend(found.iter().filter(|&&v| keep_pt(v, *f)).map(|&v| {
-                            PointTriangleCandidate {
-                                vertex: v,
-                                face: *f,
-                            }
-                        }));
-                    }
-                    out
-                })
-                .collect();
-            cross.par_sort_unstable();
-            point_triangle = merge_sorted(point_triangle, cross);
-        }
+            },
+        ));
 
-        // Edge–edge: moving edges against moving edges (each pair once, from its lower
-        // edge), open edges against fixed edges (merged in).
+        // Edge–edge: moving edges against each other (each pair once), open edges against
+        // fixed edges.
         let keep_ee = |ea: u32, eb: u32| {
             let [a0, a1] = edges[ea as usize];
             let [b0, b1] = edges[eb as usize];
@@ -199,50 +186,34 @@ impl Candidates {
                     .all(|&p| mesh.can_touch(p, b0) && mesh.can_touch(p, b1))
                 && !mesh.excludes_edge_edge(ea.min(eb), ea.max(eb))
         };
+        let push_ee = |ea: u32, eb: u32, out: &mut Vec<EdgeEdgeCandidate>| {
+            if keep_ee(ea, eb) {
+                out.push(EdgeEdgeCandidate {
+                    edge_a: ea.min(eb),
+                    edge_b: ea.max(eb),
+                });
+            }
+        };
         let open_edge = |e: u32| edges[e as usize].iter().all(|&v| universal(v));
-        let (mut edge_edge, cross): (Vec<EdgeEdgeCandidate>, Vec<EdgeEdgeCandidate>) =
-            moving_edges
-                .par_chunks(CHUNK)
-                .zip(edge_boxes.par_chunks(CHUNK))
-                .map(|(ids, boxes)| {
-                    let mut found = Vec::new();
-                    let (mut out, mut cross) = (Vec::new(), Vec::new());
-                    for (&ea, b) in ids.iter().zip(boxes) {
-                        edge_tree.overlapping(b, &mut found);
-                        map(&moving_edges, &mut found);
-                        out.extend(found.iter().filter(|&&eb| eb > ea && keep_ee(ea, eb)).map(
-                            |&eb| EdgeEdgeCandidate {
-                                edge_a: ea,
-                                edge_b: eb,
-                            },
-                        ));
-                        if has_fixed && open_edge(ea) {
-                            fixed.edge_tree.overlapping(&b.grown(extra), &mut found);
-                            map(&fixed.edges, &mut found);
-                            cross.extend(found.iter().filter(|&&eb| keep_ee(ea, eb)).map(|&eb| {
-                                EdgeEdgeCandidate {
-                                    edge_a: ea.min(eb),
-                                    edge_b: ea.max(eb),
-                                }
-                            }));
-                        }
-                    }
-                    (out, cross)
-                })
-                .reduce(
-                    || (Vec::new(), Vec::new()),
-                    |(mut a, mut c), (b, d)| {
-                        a.extend(b);
-                        c.extend(d);
-                        (a, c)
-                    },
-                );
-        if !cross.is_empty() {
-            let mut cross = cross;
-            cross.par_sort_unstable();
-            edge_edge = merge_sorted(edge_edge, cross);
-        }
-        // Chunks are visited in order and each query is sorted: the lists are sorted.
+        let mut edge_edge = pairs(edge_tree, edge_tree, true, test, &|i, j, out| {
+            push_ee(moving.edges[i as usize], moving.edges[j as usize], out)
+        });
+        edge_edge.extend(pairs(
+            edge_tree,
+            fixed.edge.fitted(),
+            false,
+            test_fixed,
+            &|i, j, out| {
+                let ea = moving.edges[i as usize];
+                if open_edge(ea) {
+                    push_ee(ea, fixed.edges[j as usize], out);
+                }
+            },
+        ));
+        // Each pair was found once (the trees hold disjoint primitives): sorting makes the
+        // lists independent of the traversal.
+        point_triangle.par_sort_unstable();
+        edge_edge.par_sort_unstable();
         debug_assert!(point_triangle.windows(2).all(|w| w[0] < w[1]));
         debug_assert!(edge_edge.windows(2).all(|w| w[0] < w[1]));
         Self {
@@ -252,36 +223,103 @@ impl Candidates {
     }
 }
 
-/// Two sorted lists with no common element, merged.
-fn merge_sorted<T: Ord + Copy>(a: Vec<T>, b: Vec<T>) -> Vec<T> {
-    if b.is_empty() {
-        return a;
-    }
-    let mut out = Vec::with_capacity(a.len() + b.len());
-    let (mut i, mut j) = (0, 0);
-    while i < a.len() && j < b.len() {
-        if a[i] <= b[j] {
-            out.push(a[i]);
-            i += 1;
-        } else {
-            out.push(b[j]);
-            j += 1;
+/// The moving primitives (with at least one touch-all vertex; see
+/// `Candidates::from_split`) and the layouts of their trees, whose boxes are refit at every
+/// build.
+#[derive(Clone, Debug)]
+struct MovingLayouts {
+    /// Touch-all vertices, moving faces and moving edges, ascending.
+    vertices: Vec<u32>,
+    faces: Vec<u32>,
+    edges: Vec<u32>,
+    vertex: Layout,
+    face: Layout,
+    edge: Layout,
+}
+
+impl MovingLayouts {
+    /// Layouts from the primitives' centres at `x`.
+    fn new(mesh: &ContactMesh, x: &[f64]) -> Self {
+        let split = mesh.groups_split_by_universal();
+        let universal = |v: u32| !split || mesh.touches_all(v);
+        let faces: Vec<u32> = (0..mesh.faces().len() as u32)
+            .filter(|&f| mesh.faces()[f as usize].iter().any(|&v| universal(v)))
+            .collect();
+        let edges: Vec<u32> = (0..mesh.edges().len() as u32)
+            .filter(|&e| mesh.edges()[e as usize].iter().any(|&v| universal(v)))
+            .collect();
+        let vertices: Vec<u32> = mesh
+            .vertices()
+            .iter()
+            .copied()
+            .filter(|&v| universal(v))
+            .collect();
+        let centre = |ids: &[u32]| {
+            Point3::from(
+                ids.iter().map(|&i| vertex(x, i)).sum::<super::math::Vec3>() / ids.len() as f64,
+            )
+        };
+        Self {
+            vertex: Layout::new(&vertices.iter().map(|&v| centre(&[v])).collect::<Vec<_>>()),
+            face: Layout::new(
+                &faces
+                    .iter()
+                    .map(|&f| centre(&mesh.faces()[f as usize]))
+                    .collect::<Vec<_>>(),
+            ),
+            edge: Layout::new(
+                &edges
+                    .iter()
+                    .map(|&e| centre(&mesh.edges()[e as usize]))
+                    .collect::<Vec<_>>(),
+            ),
+            vertices,
+            faces,
+            edges,
         }
     }
-    out.extend_from_slice(&a[i..]);
-    out.extend_from_slice(&b[j..]);
-    out
+}
+
+/// A tree over fixed boxes: layout, node boxes and the boxes themselves.
+struct FixedTree {
+    layout: Layout,
+    nodes: Vec<Box3>,
+    boxes: Vec<Box3>,
+}
+
+impl FixedTree {
+    fn new(boxes: Vec<Box3>) -> Self {
+        let centres: Vec<Point3<f64>> = boxes
+            .iter()
+            .map(|b| nalgebra::center(&b.min, &b.max))
+            .collect();
+        let layout = Layout::new(&centres);
+        let nodes = layout.fit(&boxes);
+        Self {
+            layout,
+            nodes,
+            boxes,
+        }
+    }
+
+    fn fitted(&self) -> Fitted<'_, Box3> {
+        Fitted {
+            layout: &self.layout,
+            nodes: &self.nodes,
+            items: &self.boxes,
+        }
+    }
 }
 
 /// Trees over the fixed primitives (see `Candidates::from_split`): faces and
 /// edges with no touch-all vertex, and the vertices outside the touch-all groups.
 struct FixedTrees {
     faces: Vec<u32>,
-    face_tree: BoxTree,
+    face: FixedTree,
     edges: Vec<u32>,
-    edge_tree: BoxTree,
+    edge: FixedTree,
     vertices: Vec<u32>,
-    vertex_tree: BoxTree,
+    vertex: FixedTree,
 }
 
 impl FixedTrees {
@@ -295,21 +333,20 @@ impl FixedTrees {
             .filter(|&e| mesh.edges()[e as usize].iter().all(fixed))
             .collect();
         let vertices: Vec<u32> = mesh.vertices().iter().copied().filter(fixed).collect();
-        let tree = |boxes: Vec<Box3>| BoxTree::new(&boxes);
         Self {
-            face_tree: tree(
+            face: FixedTree::new(
                 faces
                     .par_iter()
                     .map(|&f| box_of(&mesh.faces()[f as usize]))
                     .collect(),
             ),
-            edge_tree: tree(
+            edge: FixedTree::new(
                 edges
                     .par_iter()
                     .map(|&e| box_of(&mesh.edges()[e as usize]))
                     .collect(),
             ),
-            vertex_tree: tree(
+            vertex: FixedTree::new(
                 vertices
                     .par_iter()
                     .map(|v| box_of(std::slice::from_ref(v)))
@@ -320,25 +357,26 @@ impl FixedTrees {
             vertices,
         }
     }
-
-    fn is_empty(&self) -> bool {
-        self.faces.is_empty() && self.edges.is_empty() && self.vertices.is_empty()
-    }
 }
 
-/// The broad phase's trees over the primitives that do not move (every vertex outside the
-/// touch-all groups, e.g. the teeth during a solve at a fixed bone pose), built once at
-/// their positions and reused by every later candidate build while they stay there: only
-/// the moving primitives' trees are rebuilt ([`Candidates::build_with`],
-/// [`Candidates::build_swept_with`]).
+/// The broad phase's trees prepared at the start of a solve and reused by every later
+/// candidate build ([`Candidates::build_with`], [`Candidates::build_swept_with`],
+/// [`super::VerletList`]):
+/// - over the primitives that do not move (every vertex outside the touch-all groups, e.g.
+///   the teeth during a solve at a fixed bone pose): built once at their positions, reused
+///   while they stay there;
+/// - over the moving ones: the layout (which primitives share a node), whose boxes are
+///   refit at every build (the surface deforms smoothly, so the grouping stays good).
 pub struct FixedPrimitives {
     trees: FixedTrees,
+    moving: MovingLayouts,
     /// Positions of the fixed vertices when the trees were built (to check reuse).
     positions: Vec<f64>,
 }
 
 impl FixedPrimitives {
-    /// Trees over the fixed primitives at positions `x` (exact boxes: queries grow theirs).
+    /// Trees over the fixed primitives at positions `x` (exact boxes: queries grow theirs),
+    /// and the moving primitives' layouts from their positions at `x`.
     pub fn new(mesh: &ContactMesh, x: &[f64]) -> Result<Self, ContactError> {
         mesh.check_positions(x)?;
         let trees = FixedTrees::new(mesh, &|ids: &[u32]| {
@@ -349,7 +387,11 @@ impl FixedPrimitives {
             .iter()
             .flat_map(|&v| vertex(x, v).into_iter().copied().collect::<Vec<_>>())
             .collect();
-        Ok(Self { trees, positions })
+        Ok(Self {
+            trees,
+            moving: MovingLayouts::new(mesh, x),
+            positions,
+        })
     }
 
     /// Number of fixed vertices.
@@ -393,9 +435,11 @@ impl Candidates {
         };
         Ok(Self::from_split(
             mesh,
+            &fixed.moving,
             &box_of,
             &fixed.trees,
-            0.5 * inflation,
+            &|a: &Box3, b: &Box3| a.overlaps(b),
+            &grown_overlap(0.5 * inflation),
         ))
     }
 
@@ -412,11 +456,181 @@ impl Candidates {
         fixed.check(x, Some(dx))?;
         Ok(Self::from_split(
             mesh,
+            &fixed.moving,
             &swept_box(x, dx, inflation),
             &fixed.trees,
-            0.5 * inflation,
+            &|a: &Box3, b: &Box3| a.overlaps(b),
+            &grown_overlap(0.5 * inflation),
         ))
     }
+
+    /// The pairs of [`Candidates::build_swept_with`] (`inflation = dhat`) that may come
+    /// within `dhat` during the step by the relative-motion bound (see
+    /// [`super::VerletList`]), and maybe a few more: whole subtrees are left out whose
+    /// boxes at `x` are farther apart than `dhat` plus the most their vertices can move
+    /// relative to each other. Neighbours along the surface that move together are never
+    /// visited pair by pair; the caller applies the exact bound to what is left.
+    pub(crate) fn build_swept_near(
+        mesh: &ContactMesh,
+        fixed: &FixedPrimitives,
+        x: &[f64],
+        dx: &[f64],
+        dhat: f64,
+    ) -> Result<Self, ContactError> {
+        check_swept(mesh, x, dx, dhat)?;
+        fixed.check(x, Some(dx))?;
+        let swept = swept_box(x, dx, dhat);
+        let bound_of = |ids: &[u32]| SweptBound {
+            swept: swept(ids),
+            at: Box3::around_iter(ids.iter().map(|&i| Point3::from(vertex(x, i))), 0.0),
+            moved: Box3::around_iter(ids.iter().map(|&i| Point3::from(vertex(dx, i))), 0.0),
+        };
+        let grown = grown_overlap(0.5 * dhat);
+        let no_move = Box3::around(&[Point3::origin()], 0.0);
+        Ok(Self::from_split(
+            mesh,
+            &fixed.moving,
+            &bound_of,
+            &fixed.trees,
+            &|a: &SweptBound, b: &SweptBound| {
+                a.swept.overlaps(&b.swept) && !apart(&a.at, &a.moved, &b.at, &b.moved, dhat)
+            },
+            &|a: &SweptBound, b: &Box3| {
+                grown(&a.swept, b) && !apart(&a.at, &a.moved, b, &no_move, dhat)
+            },
+        ))
+    }
+    /// The pairs that may come within `dhat` while every vertex moves from `x0 + start` to
+    /// `x0 + end` (displacements from `x0`, linearly), among those farther apart than
+    /// `listed` at `x0` (the pairs closer than that are the caller's, e.g. a
+    /// [`super::VerletList`] built at `x0` with reach `listed`), and maybe a few more.
+    ///
+    /// A pair can come closer by at most its largest relative displacement, so the pairs
+    /// farther than `listed` can reach `dhat` only where some vertices move by more than
+    /// `listed − dhat` relative to each other: whole subtrees that move together (the
+    /// neighbours along the surface) are left out, and so are those whose boxes at `x0` are
+    /// farther apart than `dhat` plus their relative motion. The caller applies the exact
+    /// bound to what is left; the fixed vertices must not move.
+    pub(crate) fn build_moved(
+        mesh: &ContactMesh,
+        fixed: &FixedPrimitives,
+        x0: &[f64],
+        start: &[f64],
+        end: &[f64],
+        dhat: f64,
+        listed: f64,
+    ) -> Result<Self, ContactError> {
+        check_swept(mesh, x0, start, dhat)?;
+        mesh.check_positions(end)?;
+        fixed.check(x0, Some(start))?;
+        fixed.check(x0, Some(end))?;
+        let bound_of = |ids: &[u32]| MovedBound {
+            at: Box3::around_iter(ids.iter().map(|&i| Point3::from(vertex(x0, i))), 0.0),
+            moved: Box3::around_iter(
+                ids.iter()
+                    .flat_map(|&i| [Point3::from(vertex(start, i)), Point3::from(vertex(end, i))]),
+                0.0,
+            ),
+        };
+        let no_move = Box3::around(&[Point3::origin()], 0.0);
+        let together = listed - dhat - APART_TOLERANCE;
+        let may_meet = |at_a: &Box3, moved_a: &Box3, at_b: &Box3, moved_b: &Box3| {
+            let (gap, far) = gap_and_reach(at_a, moved_a, at_b, moved_b);
+            far > together && gap - far <= dhat + APART_TOLERANCE
+        };
+        Ok(Self::from_split(
+            mesh,
+            &fixed.moving,
+            &bound_of,
+            &fixed.trees,
+            &|a: &MovedBound, b: &MovedBound| may_meet(&a.at, &a.moved, &b.at, &b.moved),
+            &|a: &MovedBound, b: &Box3| may_meet(&a.at, &a.moved, b, &no_move),
+        ))
+    }
+}
+
+/// A moving primitive (or node): its box at the reference positions and the box of its
+/// vertices' displacements from there (at both ends of a step).
+#[derive(Clone, Copy)]
+struct MovedBound {
+    at: Box3,
+    moved: Box3,
+}
+
+impl Bound for MovedBound {
+    #[inline]
+    fn union(&self, other: &Self) -> Self {
+        Self {
+            at: self.at.union(&other.at),
+            moved: self.moved.union(&other.moved),
+        }
+    }
+
+    #[inline]
+    fn extent(&self) -> f64 {
+        self.at.extent()
+    }
+}
+
+/// A moving primitive (or node) along a step: its swept box grown by d̂/2, its box at the
+/// step's start and the box of its vertices' displacements.
+#[derive(Clone, Copy)]
+struct SweptBound {
+    swept: Box3,
+    at: Box3,
+    moved: Box3,
+}
+
+impl Bound for SweptBound {
+    #[inline]
+    fn union(&self, other: &Self) -> Self {
+        Self {
+            swept: self.swept.union(&other.swept),
+            at: self.at.union(&other.at),
+            moved: self.moved.union(&other.moved),
+        }
+    }
+
+    #[inline]
+    fn extent(&self) -> f64 {
+        self.swept.extent()
+    }
+}
+
+/// Slack on the relative-motion bound: far above the rounding of the exact test that
+/// follows (cm), far below d̂.
+const APART_TOLERANCE: f64 = 1e-8;
+
+/// Whether every pair of a primitive in (`at_a`, `moved_a`) and one in (`at_b`, `moved_b`)
+/// stays farther than `dhat` from each other during the step: their distance at the start
+/// is at least the gap between the boxes, and the pair comes closer by at most the largest
+/// relative displacement, which the farthest points of the displacement boxes bound.
+#[inline]
+fn apart(at_a: &Box3, moved_a: &Box3, at_b: &Box3, moved_b: &Box3, dhat: f64) -> bool {
+    let (gap, far) = gap_and_reach(at_a, moved_a, at_b, moved_b);
+    gap - far > dhat + APART_TOLERANCE
+}
+
+/// The distance between two boxes of positions, and the largest distance between two
+/// displacements in two boxes of displacements (how much closer two primitives in them can
+/// come).
+#[inline]
+fn gap_and_reach(at_a: &Box3, moved_a: &Box3, at_b: &Box3, moved_b: &Box3) -> (f64, f64) {
+    let (mut gap, mut far) = (0.0, 0.0);
+    for k in 0..3 {
+        let g = (at_a.min[k] - at_b.max[k]).max(at_b.min[k] - at_a.max[k]);
+        if g > 0.0 {
+            gap += g * g;
+        }
+        let f = (moved_a.max[k] - moved_b.min[k]).max(moved_b.max[k] - moved_a.min[k]);
+        far += f * f;
+    }
+    (f64::sqrt(gap), f64::sqrt(far))
+}
+
+/// Overlap of a moving box grown by `extra` with a fixed one.
+fn grown_overlap(extra: f64) -> impl Fn(&Box3, &Box3) -> bool + Sync {
+    move |a: &Box3, b: &Box3| a.grown(extra).overlaps(b)
 }
 
 fn check_swept(

@@ -28,6 +28,8 @@ pub struct VerletList {
     /// The list holds every pair that can come within d̂ while each vertex stays within
     /// `slack` (Euclidean, cm) of `y₀`; `None`: built for one swept step only.
     slack: Option<f64>,
+    /// The list holds every pair closer than this at `y₀` (cm; `dhat + 2·slack`).
+    reach: f64,
     candidates: Candidates,
     /// `d(y₀)` per point–triangle and edge–edge pair (cm).
     pt_distance: Vec<f64>,
@@ -46,9 +48,14 @@ impl VerletList {
     ) -> Result<Self, ContactError> {
         let reach = dhat + 2.0 * slack;
         let boxes = Candidates::build_with(mesh, fixed, y, reach)?;
-        Ok(Self::with_distances(mesh, boxes, y, Some(slack), |_, d| {
-            d < reach
-        }))
+        Ok(Self::with_distances(
+            mesh,
+            boxes,
+            y,
+            Some(slack),
+            reach,
+            |_, d| d < reach,
+        ))
     }
 
     /// Every pair that can come within `dhat` during the step `y → y + dy` (valid for this
@@ -60,10 +67,15 @@ impl VerletList {
         dy: &[f64],
         dhat: f64,
     ) -> Result<Self, ContactError> {
-        let boxes = Candidates::build_swept_with(mesh, fixed, y, dy, dhat)?;
-        Ok(Self::with_distances(mesh, boxes, y, None, |ids, d| {
-            d - relative_motion(ids, dy) < dhat
-        }))
+        let boxes = Candidates::build_swept_near(mesh, fixed, y, dy, dhat)?;
+        Ok(Self::with_distances(
+            mesh,
+            boxes,
+            y,
+            None,
+            dhat,
+            |ids, d| d - relative_motion(ids, dy) < dhat,
+        ))
     }
 
     fn with_distances(
@@ -71,6 +83,7 @@ impl VerletList {
         boxes: Candidates,
         y: &[f64],
         slack: Option<f64>,
+        reach: f64,
         keep: impl Fn(&Stencil, f64) -> bool + Sync,
     ) -> Self {
         let faces = mesh.faces();
@@ -101,6 +114,7 @@ impl VerletList {
         Self {
             y0: y.to_vec(),
             slack,
+            reach,
             candidates: Candidates {
                 point_triangle,
                 edge_edge,
@@ -108,6 +122,11 @@ impl VerletList {
             pt_distance,
             ee_distance,
         }
+    }
+
+    /// The pairs held (sorted), as built.
+    pub fn candidates(&self) -> &Candidates {
+        &self.candidates
     }
 
     /// Pairs held (all that the list can ever return).
@@ -126,18 +145,13 @@ impl VerletList {
         let Some(slack) = self.slack else {
             return false;
         };
-        let s2 = slack * slack;
-        y.par_chunks_exact(3)
-            .zip(dy.par_chunks_exact(3))
-            .zip(self.y0.par_chunks_exact(3))
-            .all(|((p, d), q)| {
-                let (mut a, mut b) = (0.0, 0.0);
-                for k in 0..3 {
-                    a += (p[k] - q[k]).powi(2);
-                    b += (p[k] + d[k] - q[k]).powi(2);
-                }
-                a <= s2 && b <= s2
-            })
+        within(&self.y0, y, dy, slack)
+    }
+
+    /// Whether both ends of every vertex's move `y → y + dy` are within `distance` of `y₀`
+    /// (false for a swept list).
+    pub fn moved_within(&self, y: &[f64], dy: &[f64], distance: f64) -> bool {
+        self.slack.is_some() && within(&self.y0, y, dy, distance)
     }
 
     /// The pairs that can come within `dhat` during `y → y + dy` (a subset of the list,
@@ -150,15 +164,90 @@ impl VerletList {
         dy: &[f64],
         dhat: f64,
     ) -> Result<Candidates, ContactError> {
+        let (start, end) = self.moves(mesh, y, dy)?;
+        Ok(self.listed_near(mesh, &start, &end, dhat))
+    }
+
+    /// The pairs that can come within `dhat` during `y → y + dy`, whether or not the list
+    /// covers the step (a list built with a slack, i.e. by [`VerletList::build`]): the
+    /// list's pairs that can ([`VerletList::near`]), and the pairs beyond the list's reach
+    /// that can, found from the relative motion since `y₀` with the same bound
+    /// (`Candidates::build_moved`: cheap while the surface moves smoothly since `y₀`, as
+    /// neighbours moving together are never visited). Returns them (sorted) and how many
+    /// came from beyond the list. `fixed` must be the trees the list was built with.
+    pub fn near_beyond(
+        &self,
+        mesh: &ContactMesh,
+        fixed: &FixedPrimitives,
+        y: &[f64],
+        dy: &[f64],
+        dhat: f64,
+    ) -> Result<(Candidates, usize), ContactError> {
+        if self.slack.is_none() {
+            return Err(ContactError::InvalidParameter(
+                "a swept Verlet list covers its own step only".into(),
+            ));
+        }
+        let (start, end) = self.moves(mesh, y, dy)?;
+        let listed = self.listed_near(mesh, &start, &end, dhat);
+        let beyond =
+            Candidates::build_moved(mesh, fixed, &self.y0, &start, &end, dhat, self.reach)?;
+        let faces = mesh.faces();
+        let edges = mesh.edges();
+        let close = |ids: Stencil| {
+            let d0 = ids.distance(&self.y0);
+            d0 - relative_motion(&ids, &start).max(relative_motion(&ids, &end)) < dhat
+        };
+        let point_triangle: Vec<_> = beyond
+            .point_triangle
+            .into_par_iter()
+            .filter(|c| {
+                let f = faces[c.face as usize];
+                self.candidates.point_triangle.binary_search(c).is_err()
+                    && close(Stencil::PointTriangle([c.vertex, f[0], f[1], f[2]]))
+            })
+            .collect();
+        let edge_edge: Vec<_> = beyond
+            .edge_edge
+            .into_par_iter()
+            .filter(|c| {
+                let [a0, a1] = edges[c.edge_a as usize];
+                let [b0, b1] = edges[c.edge_b as usize];
+                self.candidates.edge_edge.binary_search(c).is_err()
+                    && close(Stencil::EdgeEdge([a0, a1, b0, b1]))
+            })
+            .collect();
+        let extra = point_triangle.len() + edge_edge.len();
+        Ok((
+            Candidates {
+                point_triangle: merge_sorted(listed.point_triangle, point_triangle),
+                edge_edge: merge_sorted(listed.edge_edge, edge_edge),
+            },
+            extra,
+        ))
+    }
+
+    /// Displacements since `y₀` at the step's start and end.
+    fn moves(
+        &self,
+        mesh: &ContactMesh,
+        y: &[f64],
+        dy: &[f64],
+    ) -> Result<(Vec<f64>, Vec<f64>), ContactError> {
         mesh.check_positions(y)?;
         mesh.check_positions(dy)?;
-        // Displacements since y₀ at the step's start and end.
         let start: Vec<f64> = y.par_iter().zip(&self.y0).map(|(p, q)| p - q).collect();
         let end: Vec<f64> = start.par_iter().zip(dy).map(|(u, d)| u + d).collect();
+        Ok((start, end))
+    }
+
+    /// The list's pairs that can come within `dhat` while the displacements since `y₀`
+    /// go from `start` to `end`.
+    fn listed_near(&self, mesh: &ContactMesh, start: &[f64], end: &[f64], dhat: f64) -> Candidates {
         let faces = mesh.faces();
         let edges = mesh.edges();
         let close = |ids: Stencil, d0: f64| {
-            d0 - relative_motion(&ids, &start).max(relative_motion(&ids, &end)) < dhat
+            d0 - relative_motion(&ids, start).max(relative_motion(&ids, end)) < dhat
         };
         let point_triangle = self
             .candidates
@@ -183,11 +272,48 @@ impl VerletList {
             })
             .map(|(c, _)| *c)
             .collect();
-        Ok(Candidates {
+        Candidates {
             point_triangle,
             edge_edge,
-        })
+        }
     }
+}
+
+/// Whether both ends of every vertex's move `y → y + dy` are within `distance` of `y0`.
+fn within(y0: &[f64], y: &[f64], dy: &[f64], distance: f64) -> bool {
+    let d2 = distance * distance;
+    y.par_chunks_exact(3)
+        .zip(dy.par_chunks_exact(3))
+        .zip(y0.par_chunks_exact(3))
+        .all(|((p, d), q)| {
+            let (mut a, mut b) = (0.0, 0.0);
+            for k in 0..3 {
+                a += (p[k] - q[k]).powi(2);
+                b += (p[k] + d[k] - q[k]).powi(2);
+            }
+            a <= d2 && b <= d2
+        })
+}
+
+/// Two sorted lists with no common element, merged.
+fn merge_sorted<T: Ord + Copy>(a: Vec<T>, b: Vec<T>) -> Vec<T> {
+    if b.is_empty() {
+        return a;
+    }
+    let mut out = Vec::with_capacity(a.len() + b.len());
+    let (mut i, mut j) = (0, 0);
+    while i < a.len() && j < b.len() {
+        if a[i] <= b[j] {
+            out.push(a[i]);
+            i += 1;
+        } else {
+            out.push(b[j]);
+            j += 1;
+        }
+    }
+    out.extend_from_slice(&a[i..]);
+    out.extend_from_slice(&b[j..]);
+    out
 }
 
 /// The four vertices of a pair, by kind.

@@ -109,3 +109,103 @@ fn common_translation_keeps_only_pairs_within_dhat() {
     assert!(within.iter().all(|p| contains(&near, p)));
     assert!(list.len() > near.len());
 }
+
+/// A step far beyond the slack: the list's near pairs plus those found beyond its reach
+/// from the relative motion hold every pair that comes within d̂ along the step, and some
+/// of them come from beyond the list.
+#[test]
+fn near_beyond_holds_every_pair_within_dhat_for_steps_leaving_the_slack() {
+    let (y, faces) = two_sheets(8, 0.12, [0.011, -0.017], 0.2, 0.01, 4);
+    let mesh = two_sheet_mesh(&y, &faces);
+    let fixed = FixedPrimitives::new(&mesh, &y).unwrap();
+    let (dhat, slack) = (0.03, 0.01);
+    let list = VerletList::build(&mesh, &fixed, &y, dhat, slack).unwrap();
+    let n = y.len() / 3;
+    let mut rng = ChaCha8Rng::seed_from_u64(6);
+    let mut extra_total = 0;
+    let mut checked = 0;
+    for trial in 0..4 {
+        // The upper sheet moves down through most of the gap, with some shear and noise.
+        let mut at = y.clone();
+        let mut dy = vec![0.0; y.len()];
+        for v in 0..n {
+            let upper = v >= n / 2;
+            for k in 0..3 {
+                let i = 3 * v + k;
+                let push = if upper && k == 2 { -0.05 } else { 0.0 };
+                at[i] += push + rng.random_range(-0.004..0.004);
+                dy[i] = push + if upper && k == 0 { 0.01 } else { 0.0 };
+            }
+        }
+        assert!(
+            !list.covers(&at, &dy),
+            "trial {trial} stays within the slack"
+        );
+        let (near, extra) = list.near_beyond(&mesh, &fixed, &at, &dy, dhat).unwrap();
+        extra_total += extra;
+        assert!(near.point_triangle.windows(2).all(|w| w[0] < w[1]));
+        assert!(near.edge_edge.windows(2).all(|w| w[0] < w[1]));
+        for s in [0.0, 0.25, 0.5, 0.75, 1.0] {
+            let ys: Vec<f64> = at.iter().zip(&dy).map(|(p, d)| p + s * d).collect();
+            for p in close_pairs(&mesh, &ys, dhat) {
+                assert!(contains(&near, &p), "trial {trial}, s = {s}: missed {p:?}");
+                checked += 1;
+            }
+        }
+    }
+    assert!(checked > 0, "the scene must bring pairs within d̂");
+    assert!(
+        extra_total > 0,
+        "some pairs must come from beyond the list's reach"
+    );
+    // A swept list covers its own step only.
+    let dy = vec![0.0; y.len()];
+    let swept = VerletList::build_swept(&mesh, &fixed, &y, &dy, dhat).unwrap();
+    assert!(swept.near_beyond(&mesh, &fixed, &y, &dy, dhat).is_err());
+}
+
+/// The swept list's pruned traversal (subtrees left out by the relative-motion bound)
+/// loses nothing: it holds exactly the swept-box candidates that pass the bound.
+#[test]
+fn swept_list_is_the_swept_candidates_that_pass_the_bound() {
+    let (y, faces) = two_sheets(9, 0.05, [0.013, -0.021], 0.3, 0.01, 7);
+    let mesh = two_sheet_mesh(&y, &faces);
+    let fixed = FixedPrimitives::new(&mesh, &y).unwrap();
+    let dhat = 0.03;
+    let n = y.len() / 3;
+    let mut rng = ChaCha8Rng::seed_from_u64(8);
+    let dy: Vec<f64> = (0..y.len())
+        .map(|i| {
+            let sheet = if i / 3 >= n / 2 { -1.0 } else { 1.0 };
+            sheet * if i % 3 == 2 { 0.02 } else { 0.0 } + rng.random_range(-0.01..0.01)
+        })
+        .collect();
+    let list = VerletList::build_swept(&mesh, &fixed, &y, &dy, dhat).unwrap();
+    let boxes = Candidates::build_swept_with(&mesh, &fixed, &y, &dy, dhat).unwrap();
+    let faces = mesh.faces();
+    let edges = mesh.edges();
+    let keep = |ids: Stencil| ids.distance(&y) - relative_motion(&ids, &dy) < dhat;
+    let point_triangle: Vec<_> = boxes
+        .point_triangle
+        .iter()
+        .filter(|c| {
+            let f = faces[c.face as usize];
+            keep(Stencil::PointTriangle([c.vertex, f[0], f[1], f[2]]))
+        })
+        .copied()
+        .collect();
+    let edge_edge: Vec<_> = boxes
+        .edge_edge
+        .iter()
+        .filter(|c| {
+            let [a0, a1] = edges[c.edge_a as usize];
+            let [b0, b1] = edges[c.edge_b as usize];
+            keep(Stencil::EdgeEdge([a0, a1, b0, b1]))
+        })
+        .copied()
+        .collect();
+    assert!(!point_triangle.is_empty() && !edge_edge.is_empty());
+    assert!(point_triangle.len() + edge_edge.len() < boxes.len());
+    assert_eq!(list.candidates.point_triangle, point_triangle);
+    assert_eq!(list.candidates.edge_edge, edge_edge);
+}
