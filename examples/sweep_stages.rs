@@ -63,6 +63,14 @@ fn main() -> Result<()> {
                         c.map(|c| c.gate),
                     );
                 }
+                Err(facesim::sim::SimError::Intersecting { count, stats }) => {
+                    let c = stats.contact.as_ref();
+                    println!(
+                        "frame {i}: error: {count} crossings after {} stages ({} carried), {jaw}",
+                        c.map_or(0, |c| c.pose_stages),
+                        c.map_or(0, |c| c.carried_stages),
+                    );
+                }
                 Err(e) => println!("frame {i}: error: {e}, {jaw}"),
             }
         }

@@ -160,6 +160,17 @@ impl Simulator {
         Ok(report.step >= 1.0)
     }
 
+    /// Whether the carried state (tissue `x + dx`, pose `b`) passes the after-solve crossing
+    /// check. CCD certifies every pair that contact tracks, but pairs left out because they
+    /// are within d̂ at rest are not tracked; a carry moves the tissue much farther in one go
+    /// than a line-search step (capped at 0.1 cm), so the crossing check guards those too.
+    fn crossing_free(&self, model: &ContactModel, x: &[f64], dx: &[f64], b: &BonePose) -> bool {
+        let moved: Vec<f64> = x.iter().zip(dx).map(|(p, d)| p + d).collect();
+        let mut y = vec![0.0; 3 * model.face.vertex_count()];
+        model.face.positions(&moved, b, &mut y);
+        model.face.new_crossings(&y).is_empty()
+    }
+
     /// How a stage from the carrier's pose to pose `b` may start (`None` when no move is
     /// certified: the caller shortens the stage).
     pub(crate) fn stage_start(
@@ -182,7 +193,10 @@ impl Simulator {
             if volume < 1.0 {
                 dx.iter_mut().for_each(|v| *v *= CARRY_SHORTENING * volume);
             }
-            if volume > 0.0 && self.stage_path_free(model, x, Some(&dx), a, b, gap)? {
+            if volume > 0.0
+                && self.stage_path_free(model, x, Some(&dx), a, b, gap)?
+                && self.crossing_free(model, x, &dx, b)
+            {
                 return Ok(Some(StageStart::Carried(dx)));
             }
         }
