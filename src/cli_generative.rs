@@ -16,8 +16,8 @@ use facesim::generative::train::LOSS_CSV_HEADER;
 use facesim::generative::transfer::NearestElementTransfer;
 use facesim::generative::{
     CanonicalFrame, DisplacementData, DisplacementFace, DisplacementNets, GenerativeFace,
-    GenerativeNets, ModelTrainer, PoseSettings, Stage1Config, Stage1Data, Stage2Data, Stage2Face,
-    Stage2Nets, Stage2Settings, TrainableNets, held_out_codes,
+    GenerativeNets, ModelTrainer, NetworkSet, PoseSettings, Stage1Config, Stage1Data, Stage2Data,
+    Stage2Face, Stage2Settings, TrainingData, held_out_codes,
 };
 use facesim::nn::Checkpoint;
 use facesim::rig::FaceRig;
@@ -286,16 +286,11 @@ pub fn train(a: &TrainArgs) -> Result<()> {
     match a.stage {
         Stage::One => {
             let data = Stage1Data::new(warped(&sample, &frame, poses, FaceWarp::new)?)?;
-            run_training::<GenerativeNets>(
-                &run(config, &STAGE1_FILES),
-                &data,
-                data.pose_count(),
-                None,
-            )
+            run_training(&run(config, &STAGE1_FILES), &data, data.pose_count(), None)
         }
         Stage::Displacement => {
             let data = DisplacementData::new(warped(&sample, &frame, poses, FaceWarp::vertices)?)?;
-            run_training::<DisplacementNets>(
+            run_training(
                 &run(config, &DISPLACEMENT_FILES),
                 &data,
                 data.pose_count(),
@@ -355,11 +350,11 @@ pub fn train(a: &TrainArgs) -> Result<()> {
                 if a.contact { "on" } else { "off" },
                 init.display()
             );
-            run_training::<Stage2Nets>(
+            run_training(
                 &run(config, &STAGE2_FILES),
                 &data,
                 data.pose_count(),
-                Some(Stage2Nets(nets)),
+                Some(nets),
             )
         }
     }
@@ -427,11 +422,11 @@ struct RunSettings<'a> {
 }
 
 /// The training loop of any model: resume, loss curve, progress bar, checkpoints, summary.
-fn run_training<M: TrainableNets>(
+fn run_training<D: TrainingData>(
     run: &RunSettings<'_>,
-    data: &M::Data,
+    data: &D,
     pose_count: usize,
-    init: Option<M>,
+    init: Option<D::Nets>,
 ) -> Result<()> {
     let (a, config, files) = (run.args, run.config, run.files);
     let ck_path = a.out.join(files.checkpoint);
@@ -439,7 +434,7 @@ fn run_training<M: TrainableNets>(
     let mut trainer = if a.resume {
         let ck = Checkpoint::load(&ck_path)
             .with_context(|| format!("loading {} to resume", ck_path.display()))?;
-        ModelTrainer::<M>::resume(data, config, &ck).context("resuming")?
+        ModelTrainer::resume(data, config, &ck).context("resuming")?
     } else {
         anyhow::ensure!(
             !ck_path.exists(),
@@ -447,8 +442,8 @@ fn run_training<M: TrainableNets>(
             ck_path.display()
         );
         match init {
-            Some(nets) => ModelTrainer::<M>::from_nets(data, config, nets)?,
-            None => ModelTrainer::<M>::new(data, config, run.frame)?,
+            Some(nets) => ModelTrainer::from_nets(data, config, nets)?,
+            None => ModelTrainer::new(data, config, run.frame)?,
         }
     };
     // The loss curve: keep the rows before the resumed iteration.
@@ -530,7 +525,7 @@ fn run_training<M: TrainableNets>(
     let summary = serde_json::json!({
         "stage": files.label,
         "config": config,
-        "data_settings": M::data_settings(data),
+        "data_settings": data.settings(),
         "pose_settings": run.settings,
         "skipped_poses": skipped,
         "poses": pose_count,

@@ -40,9 +40,10 @@ pub use displacement::{DisplacementData, DisplacementFace, DisplacementNets};
 pub use eval::{EvalReport, EvalRow, evaluate};
 pub use face::{GenerativeFace, SAMPLE_NETWORKS, load_sample_networks, sample_actuations};
 pub use nets::{Architecture, CanonicalFrame, GenerativeNets};
-pub use stage2::{Stage2Data, Stage2Face, Stage2Nets, Stage2Settings, Stage2Trainer};
+pub use stage2::{Stage2Data, Stage2Face, Stage2Settings, Stage2Trainer};
 pub use train::{
-    LossRow, ModelTrainer, Stage1Config, Stage1Data, TrainableNets, train_model, train_stage1,
+    LossRow, ModelTrainer, NetworkSet, Stage1Config, Stage1Data, TrainingData, train_model,
+    train_stage1,
 };
 
 use crate::drive::DriveError;

@@ -23,7 +23,7 @@
 //! The batch loss is `L = (1/B') Σ ℓ_b + λ_act L_act + λ_lip Π softplus(cᵢ)` over the `B'`
 //! poses whose solve converged and whose adjoint solve reached its tolerance; the others are
 //! left out (the adjoint needs an equilibrium) and counted in [`LossParts::skipped`].
-//! [`ModelTrainer`] (via [`Stage2Nets`]) does the rest: Adam, schedule, checkpoints, resume.
+//! [`ModelTrainer`] (via [`TrainingData`] for [`Stage2Data`]) does the rest: Adam, schedule, checkpoints, resume.
 
 use faer::{Mat, Par};
 use nalgebra::{Matrix3, Point3, Vector3};
@@ -34,14 +34,14 @@ use super::data::FacePoses;
 use super::expm::{exp_sym, exp_sym_adjoint};
 use super::face::FaceWarp;
 use super::loss::{Grads, LossParts, LossWorkspace, Objective, networks_loss};
-use super::nets::{Architecture, CanonicalFrame, GenerativeNets, NET_NAMES};
-use super::train::{ModelTrainer, Stage1Config, TrainableNets, batch_picks, pose_index};
+use super::nets::{CanonicalFrame, GenerativeNets};
+use super::train::{ModelTrainer, Stage1Config, TrainingData, as_grads, batch_picks, pose_index};
 use crate::contact::face::{FaceContact, FaceContactSettings};
 use crate::drive::Codes;
 use crate::mapping::Mapping;
 use crate::model::FaceModel;
 use crate::model::face::Binding;
-use crate::nn::{Checkpoint, CodeBatch, Mlp, Pass, Tape};
+use crate::nn::{CodeBatch, Pass, Tape};
 use crate::rig::FaceRig;
 use crate::sim::{
     Bone, BonePose, Quality, RigidMotion, SimError, SimState, Simulator, SolveSettings, SolveStats,
@@ -618,66 +618,29 @@ pub fn stage2_loss(
     Ok(parts)
 }
 
-/// The expression/style networks trained by stage 2 (the same networks and file as
-/// [`GenerativeNets`]; a separate type only so [`ModelTrainer`] pairs them with
-/// [`Stage2Data`]).
-#[derive(Clone, Debug, PartialEq)]
-pub struct Stage2Nets(pub GenerativeNets);
+impl TrainingData for Stage2Data {
+    type Nets = GenerativeNets;
 
-impl TrainableNets for Stage2Nets {
-    type Data = Stage2Data;
-
-    fn names() -> &'static [&'static str] {
-        &NET_NAMES
-    }
-
-    fn init(
-        architecture: Architecture,
-        frame: CanonicalFrame,
-        seed: u64,
-    ) -> Result<Self, GenerativeError> {
-        GenerativeNets::new(architecture, frame, seed).map(Stage2Nets)
-    }
-
-    fn networks(&self) -> Vec<&Mlp<f64>> {
-        self.0.nets().to_vec()
-    }
-
-    fn networks_mut(&mut self) -> Vec<&mut Mlp<f64>> {
-        self.0.nets_mut().into_iter().collect()
-    }
-
-    fn to_checkpoint(&self) -> Checkpoint {
-        self.0.to_checkpoint()
-    }
-
-    fn from_checkpoint(ck: &Checkpoint) -> Result<Self, GenerativeError> {
-        GenerativeNets::from_checkpoint(ck).map(Stage2Nets)
-    }
-
-    fn data_settings(data: &Stage2Data) -> Option<String> {
-        let faces: Vec<(&str, usize)> = data
+    fn settings(&self) -> Option<String> {
+        let faces: Vec<(&str, usize)> = self
             .faces
             .iter()
             .map(|f| (f.name.as_str(), f.poses.len()))
             .collect();
-        Some(serde_json::json!({ "stage2": data.settings, "faces": faces }).to_string())
+        Some(serde_json::json!({ "stage2": self.settings, "faces": faces }).to_string())
     }
 
     fn batch_loss(
         &self,
-        data: &Stage2Data,
+        nets: &GenerativeNets,
         config: &Stage1Config,
         it: u64,
         ws: &mut LossWorkspace,
         grads: &mut [Vec<f64>],
     ) -> Result<LossParts, GenerativeError> {
-        let grads: &mut Grads = grads
-            .try_into()
-            .map_err(|_| GenerativeError::Config("gradients of 4 networks expected".into()))?;
-        stage2_loss(&self.0, data, config, it, ws, grads)
+        stage2_loss(nets, self, config, it, ws, as_grads(grads)?)
     }
 }
 
 /// The stage-2 trainer: fine-tunes given (stage-1) networks.
-pub type Stage2Trainer<'a> = ModelTrainer<'a, Stage2Nets>;
+pub type Stage2Trainer<'a> = ModelTrainer<'a, Stage2Data>;

@@ -10,8 +10,8 @@ use super::face::FaceWarp;
 use super::loss::{LossWorkspace, zero_grads};
 use super::nets::{CanonicalFrame, GenerativeNets};
 use super::stage2::{
-    SkinPoint, Stage2Data, Stage2Face, Stage2Nets, Stage2Pose, Stage2Settings, Stage2Trainer,
-    pose_loss, stage2_loss,
+    SkinPoint, Stage2Data, Stage2Face, Stage2Pose, Stage2Settings, Stage2Trainer, pose_loss,
+    stage2_loss,
 };
 use super::tests::tiny;
 use super::train::Stage1Config;
@@ -221,13 +221,12 @@ fn stage2_lowers_the_loss_deterministically_and_resumes_bitwise() {
     };
     let run = |seed: u64, iterations: u64| {
         let mut t =
-            Stage2Trainer::from_nets(&data, config(iterations, seed), Stage2Nets(start.clone()))
-                .unwrap();
+            Stage2Trainer::from_nets(&data, config(iterations, seed), start.clone()).unwrap();
         let mut rows = Vec::new();
         while !t.done() {
             rows.push(t.step().unwrap());
         }
-        (t.into_nets().0, rows)
+        (t.into_nets(), rows)
     };
     let (a, rows_a) = run(5, 12);
     assert!(rows_a.iter().all(|r| r.parts.skipped == 0));
@@ -240,7 +239,7 @@ fn stage2_lowers_the_loss_deterministically_and_resumes_bitwise() {
     let (c, _) = run(6, 12);
     assert_ne!(bits(&a), bits(&c));
 
-    let mut t = Stage2Trainer::from_nets(&data, config(12, 5), Stage2Nets(start.clone())).unwrap();
+    let mut t = Stage2Trainer::from_nets(&data, config(12, 5), start.clone()).unwrap();
     for _ in 0..5 {
         t.step().unwrap();
     }
@@ -254,7 +253,7 @@ fn stage2_lowers_the_loss_deterministically_and_resumes_bitwise() {
     while !resumed.done() {
         rows.push(resumed.step().unwrap());
     }
-    assert_eq!(bits(&resumed.nets().0), bits(&a));
+    assert_eq!(bits(resumed.nets()), bits(&a));
     assert_eq!(rows, rows_a[5..]);
     // Other solve settings are other data: refused.
     let other = slab_data(
@@ -268,7 +267,7 @@ fn stage2_lowers_the_loss_deterministically_and_resumes_bitwise() {
     // Sampled elements are refused: the solve needs the whole field.
     let mut sampled = config(12, 5);
     sampled.elements_per_pose = 16;
-    let mut t = Stage2Trainer::from_nets(&data, sampled, Stage2Nets(start)).unwrap();
+    let mut t = Stage2Trainer::from_nets(&data, sampled, start).unwrap();
     assert!(t.step().is_err());
 }
 

@@ -218,14 +218,10 @@ impl LossRow {
     }
 }
 
-/// What [`ModelTrainer`] trains: a few networks with a batch loss on their own data (the
-/// expression/style networks here, the displacement baseline in
-/// [`super::displacement`]). The trainer owns everything else (Adam per network, the
-/// schedule, seeded batches, checkpoints and resume), so both models train alike.
-pub trait TrainableNets: Sized {
-    /// What the loss reads its batches from.
-    type Data;
-    /// Names of the networks in a checkpoint, in [`TrainableNets::networks`] order.
+/// A set of networks [`ModelTrainer`] optimizes: their names, deterministic initialization,
+/// parameters and checkpoint form (the expression/style networks, the displacement baseline).
+pub trait NetworkSet: Sized {
+    /// Names of the networks in a checkpoint, in [`NetworkSet::networks`] order.
     fn names() -> &'static [&'static str];
     /// Fresh networks, initialized deterministically from `seed`.
     fn init(
@@ -237,15 +233,24 @@ pub trait TrainableNets: Sized {
     fn networks_mut(&mut self) -> Vec<&mut Mlp<f64>>;
     fn to_checkpoint(&self) -> Checkpoint;
     fn from_checkpoint(ck: &Checkpoint) -> Result<Self, GenerativeError>;
+}
+
+/// What [`ModelTrainer`] trains on: data with a batch loss for its networks (stage 1's and
+/// stage 2's data for the expression/style networks, the baseline's for the displacement
+/// networks). The trainer owns everything else (Adam per network, the schedule, seeded
+/// batches, checkpoints and resume), so every model trains alike.
+pub trait TrainingData {
+    /// The networks the loss differentiates.
+    type Nets: NetworkSet;
     /// Settings of the data that a resumed run must share with the saved one (beyond the
     /// [`Stage1Config`]), as a string; `None` when the data has none.
-    fn data_settings(_data: &Self::Data) -> Option<String> {
+    fn settings(&self) -> Option<String> {
         None
     }
     /// The loss of iteration `it`'s batch; **adds** each network's gradient into `grads`.
     fn batch_loss(
         &self,
-        data: &Self::Data,
+        nets: &Self::Nets,
         config: &Stage1Config,
         it: u64,
         ws: &mut LossWorkspace,
@@ -253,9 +258,7 @@ pub trait TrainableNets: Sized {
     ) -> Result<LossParts, GenerativeError>;
 }
 
-impl TrainableNets for GenerativeNets {
-    type Data = Stage1Data;
-
+impl NetworkSet for GenerativeNets {
     fn names() -> &'static [&'static str] {
         &NET_NAMES
     }
@@ -283,58 +286,73 @@ impl TrainableNets for GenerativeNets {
     fn from_checkpoint(ck: &Checkpoint) -> Result<Self, GenerativeError> {
         GenerativeNets::from_checkpoint(ck)
     }
+}
+
+impl TrainingData for Stage1Data {
+    type Nets = GenerativeNets;
 
     fn batch_loss(
         &self,
-        data: &Stage1Data,
+        nets: &GenerativeNets,
         config: &Stage1Config,
         it: u64,
         ws: &mut LossWorkspace,
         grads: &mut [Vec<f64>],
     ) -> Result<LossParts, GenerativeError> {
-        let batch = data.batch(config, it);
-        let grads: &mut Grads = grads
-            .try_into()
-            .map_err(|_| GenerativeError::Config("gradients of 4 networks expected".into()))?;
-        batch_loss(self, &batch, &config.weights, ws, grads, Par::rayon(0))
+        let batch = self.batch(config, it);
+        batch_loss(
+            nets,
+            &batch,
+            &config.weights,
+            ws,
+            as_grads(grads)?,
+            Par::rayon(0),
+        )
     }
 }
 
+/// The four expression/style networks' gradients as [`Grads`].
+pub(crate) fn as_grads(grads: &mut [Vec<f64>]) -> Result<&mut Grads, GenerativeError> {
+    grads
+        .try_into()
+        .map_err(|_| GenerativeError::Config("gradients of 4 networks expected".into()))
+}
+
 /// The training state: networks, optimizers, next iteration.
-pub struct ModelTrainer<'a, M: TrainableNets> {
-    data: &'a M::Data,
+pub struct ModelTrainer<'a, D: TrainingData> {
+    data: &'a D,
     config: Stage1Config,
     schedule: LrSchedule,
-    nets: M,
+    nets: D::Nets,
     adams: Vec<Adam>,
     iteration: u64,
     ws: LossWorkspace,
 }
 
 /// The stage-1 trainer of the expression/style networks.
-pub type Trainer<'a> = ModelTrainer<'a, GenerativeNets>;
+pub type Trainer<'a> = ModelTrainer<'a, Stage1Data>;
 
 const CONFIG_KEY: &str = "stage1_config";
 const ITERATION_KEY: &str = "stage1_iteration";
 const DATA_SETTINGS_KEY: &str = "data_settings";
 
-impl<'a, M: TrainableNets> ModelTrainer<'a, M> {
+impl<'a, D: TrainingData> ModelTrainer<'a, D> {
     /// A fresh run: networks initialized from the seed.
     pub fn new(
-        data: &'a M::Data,
+        data: &'a D,
         config: Stage1Config,
         frame: CanonicalFrame,
     ) -> Result<Self, GenerativeError> {
-        let nets = M::init(config.architecture, frame, config.seed)?;
+        let nets = D::Nets::init(config.architecture, frame, config.seed)?;
         Self::from_nets(data, config, nets)
     }
 
     /// A fresh run (fresh optimizers, iteration 0) from given networks: fine-tuning, such as
     /// stage 2 from the stage-1 weights.
     pub fn from_nets(
-        data: &'a M::Data,
+        data: &'a D,
         config: Stage1Config,
-        nets: M,
+        nets: D::Nets,
     ) -> Result<Self, GenerativeError> {
         let adams = nets
             .networks()
@@ -347,7 +365,7 @@ impl<'a, M: TrainableNets> ModelTrainer<'a, M> {
     /// Continues the run saved in `ck` (by [`ModelTrainer::checkpoint`]); the configuration
     /// must be the saved one.
     pub fn resume(
-        data: &'a M::Data,
+        data: &'a D,
         config: Stage1Config,
         ck: &Checkpoint,
     ) -> Result<Self, GenerativeError> {
@@ -366,7 +384,7 @@ impl<'a, M: TrainableNets> ModelTrainer<'a, M> {
                 "the checkpoint was made with other settings: {saved:?}, now {config:?}"
             )));
         }
-        let (saved, now) = (meta.get(DATA_SETTINGS_KEY), M::data_settings(data));
+        let (saved, now) = (meta.get(DATA_SETTINGS_KEY), data.settings());
         if saved != now.as_ref() {
             return Err(GenerativeError::Checkpoint(format!(
                 "the checkpoint was made with other data settings: {saved:?}, now {now:?}"
@@ -376,8 +394,8 @@ impl<'a, M: TrainableNets> ModelTrainer<'a, M> {
             .get(ITERATION_KEY)
             .and_then(|s| s.parse().ok())
             .ok_or_else(|| GenerativeError::Checkpoint("no iteration in the checkpoint".into()))?;
-        let nets = M::from_checkpoint(ck)?;
-        let adams = M::names()
+        let nets = D::Nets::from_checkpoint(ck)?;
+        let adams = D::Nets::names()
             .iter()
             .map(|n| {
                 let hex = meta.get(&format!("adam_{n}")).ok_or_else(|| {
@@ -392,9 +410,9 @@ impl<'a, M: TrainableNets> ModelTrainer<'a, M> {
     }
 
     fn assemble(
-        data: &'a M::Data,
+        data: &'a D,
         config: Stage1Config,
-        nets: M,
+        nets: D::Nets,
         adams: Vec<Adam>,
         iteration: u64,
     ) -> Result<Self, GenerativeError> {
@@ -429,11 +447,11 @@ impl<'a, M: TrainableNets> ModelTrainer<'a, M> {
         self.iteration >= self.config.iterations
     }
 
-    pub fn nets(&self) -> &M {
+    pub fn nets(&self) -> &D::Nets {
         &self.nets
     }
 
-    pub fn into_nets(self) -> M {
+    pub fn into_nets(self) -> D::Nets {
         self.nets
     }
 
@@ -447,8 +465,8 @@ impl<'a, M: TrainableNets> ModelTrainer<'a, M> {
             .map(|n| vec![0.0; n.num_params()])
             .collect();
         let parts = self
-            .nets
-            .batch_loss(self.data, &self.config, it, &mut self.ws, &mut grads)?;
+            .data
+            .batch_loss(&self.nets, &self.config, it, &mut self.ws, &mut grads)?;
         if !parts.total.is_finite() || grads.iter().flatten().any(|g| !g.is_finite()) {
             return Err(GenerativeError::Diverged(it));
         }
@@ -475,7 +493,7 @@ impl<'a, M: TrainableNets> ModelTrainer<'a, M> {
         let mut ck = self.nets.to_checkpoint();
         let meta = ck.metadata_mut();
         // Optimizer states as exact bits (see `nets::to_hex`), not the kit's JSON numbers.
-        for (name, adam) in M::names().iter().zip(&self.adams) {
+        for (name, adam) in D::Nets::names().iter().zip(&self.adams) {
             meta.insert(format!("adam_{name}"), to_hex(adam));
         }
         meta.insert(
@@ -483,7 +501,7 @@ impl<'a, M: TrainableNets> ModelTrainer<'a, M> {
             serde_json::to_string(&self.config).expect("serializable"),
         );
         meta.insert(ITERATION_KEY.into(), self.iteration.to_string());
-        if let Some(s) = M::data_settings(self.data) {
+        if let Some(s) = self.data.settings() {
             meta.insert(DATA_SETTINGS_KEY.into(), s);
         }
         ck
@@ -497,17 +515,18 @@ pub fn train_stage1(
     frame: CanonicalFrame,
     progress: impl FnMut(&LossRow),
 ) -> Result<(GenerativeNets, Vec<LossRow>), GenerativeError> {
-    train_model::<GenerativeNets>(data, config, frame, progress)
+    train_model(data, config, frame, progress)
 }
 
-/// Trains any [`TrainableNets`] from scratch to the end; `progress` sees every row.
-pub fn train_model<M: TrainableNets>(
-    data: &M::Data,
+/// Trains the networks of any [`TrainingData`] from scratch to the end; `progress` sees every
+/// row.
+pub fn train_model<D: TrainingData>(
+    data: &D,
     config: Stage1Config,
     frame: CanonicalFrame,
     mut progress: impl FnMut(&LossRow),
-) -> Result<(M, Vec<LossRow>), GenerativeError> {
-    let mut t = ModelTrainer::<M>::new(data, config, frame)?;
+) -> Result<(D::Nets, Vec<LossRow>), GenerativeError> {
+    let mut t = ModelTrainer::new(data, config, frame)?;
     let mut rows = Vec::new();
     while !t.done() {
         let row = t.step()?;

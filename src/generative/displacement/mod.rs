@@ -41,7 +41,7 @@ use faer::{Mat, Par};
 use super::GenerativeError;
 use super::loss::{LossParts, LossWeights, LossWorkspace, encode, encode_backward, jaw_term};
 use super::nets::{Architecture, CanonicalFrame, GenerativeNets, NetFile, jaw_params, modulation};
-use super::train::{Stage1Config, TrainableNets};
+use super::train::{NetworkSet, Stage1Config, TrainingData};
 use crate::drive::Codes;
 use crate::nn::{Checkpoint, Mlp, Pass};
 
@@ -258,9 +258,7 @@ impl DisplacementNets {
     }
 }
 
-impl TrainableNets for DisplacementNets {
-    type Data = DisplacementData;
-
+impl NetworkSet for DisplacementNets {
     fn names() -> &'static [&'static str] {
         &DISPLACEMENT_NET_NAMES
     }
@@ -288,16 +286,20 @@ impl TrainableNets for DisplacementNets {
     fn from_checkpoint(ck: &Checkpoint) -> Result<Self, GenerativeError> {
         DisplacementNets::from_checkpoint(ck)
     }
+}
+
+impl TrainingData for DisplacementData {
+    type Nets = DisplacementNets;
 
     fn batch_loss(
         &self,
-        data: &DisplacementData,
+        nets: &DisplacementNets,
         config: &Stage1Config,
         it: u64,
         ws: &mut LossWorkspace,
         grads: &mut [Vec<f64>],
     ) -> Result<LossParts, GenerativeError> {
-        let batch = data.batch(config, it);
-        DisplacementNets::batch_loss(self, &batch, &config.weights, ws, grads, Par::rayon(0))
+        let batch = self.batch(config, it);
+        nets.batch_loss(&batch, &config.weights, ws, grads, Par::rayon(0))
     }
 }

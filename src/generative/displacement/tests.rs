@@ -159,26 +159,23 @@ fn displacement_loss_gradient_matches_central_differences() {
 #[test]
 fn displacement_training_lowers_the_loss_deterministically() {
     let data = data();
-    let (nets, rows) =
-        train_model::<DisplacementNets>(data, config(150, 2), frame(), |_| {}).unwrap();
+    let (nets, rows) = train_model(data, config(150, 2), frame(), |_| {}).unwrap();
     let mean = |r: &[LossRow]| r.iter().map(|r| r.parts.total).sum::<f64>() / r.len() as f64;
     let (first, last) = (mean(&rows[..10]), mean(&rows[rows.len() - 10..]));
     assert!(last < 0.5 * first, "loss {first} → {last}");
 
-    let (a, rows_a) =
-        train_model::<DisplacementNets>(data, config(6, 11), frame(), |_| {}).unwrap();
-    let (b, rows_b) =
-        train_model::<DisplacementNets>(data, config(6, 11), frame(), |_| {}).unwrap();
+    let (a, rows_a) = train_model(data, config(6, 11), frame(), |_| {}).unwrap();
+    let (b, rows_b) = train_model(data, config(6, 11), frame(), |_| {}).unwrap();
     assert_eq!(bits(&a), bits(&b));
     assert_eq!(rows_a, rows_b);
-    let (c, _) = train_model::<DisplacementNets>(data, config(6, 12), frame(), |_| {}).unwrap();
+    let (c, _) = train_model(data, config(6, 12), frame(), |_| {}).unwrap();
     assert_ne!(bits(&a), bits(&c));
-    let mut t = ModelTrainer::<DisplacementNets>::new(data, config(6, 11), frame()).unwrap();
+    let mut t = ModelTrainer::new(data, config(6, 11), frame()).unwrap();
     for _ in 0..3 {
         t.step().unwrap();
     }
     let ck = t.checkpoint();
-    let mut resumed = ModelTrainer::<DisplacementNets>::resume(data, config(6, 11), &ck).unwrap();
+    let mut resumed = ModelTrainer::resume(data, config(6, 11), &ck).unwrap();
     while !resumed.done() {
         resumed.step().unwrap();
     }
@@ -220,8 +217,7 @@ fn displacement_face_poses_vertices_and_jaw() {
 
     // Trained on the template and identity 0: on the template (φ the identity) a training
     // pose's prediction is much closer to its label than the rest is.
-    let (nets, _) =
-        train_model::<DisplacementNets>(data(), config(3000, 4), frame(), |_| {}).unwrap();
+    let (nets, _) = train_model(data(), config(3000, 4), frame(), |_| {}).unwrap();
     let t = &s.faces[0];
     let face = DisplacementFace::new(Arc::new(nets), &t.model, None).unwrap();
     let labels = &data().faces[0];
