@@ -27,7 +27,13 @@ pub struct ContactMesh {
     excluded_point_triangle: Vec<(u32, u32)>,
     /// Edge–edge pairs `(edge a, edge b)`, `a < b`, left out of contact, sorted.
     excluded_edge_edge: Vec<(u32, u32)>,
+    /// The cell (e.g. simulation element) every vertex moves with affinely, [`NO_CELL`]
+    /// for none; empty when no cells are given (see [`ContactMesh::with_cells`]).
+    cell: Vec<u32>,
 }
+
+/// A vertex that moves with no cell.
+pub const NO_CELL: u32 = u32::MAX;
 
 impl ContactMesh {
     /// A contact surface in which every pair of primitives that shares no vertex may touch
@@ -124,6 +130,7 @@ impl ContactMesh {
             can_touch: can_touch.iter().flatten().copied().collect(),
             groups,
             excluded_point_triangle: Vec::new(),
+            cell: Vec::new(),
             excluded_edge_edge: Vec::new(),
         })
     }
@@ -148,6 +155,35 @@ impl ContactMesh {
         self.excluded_point_triangle = point_triangle;
         self.excluded_edge_edge = edge_edge;
         self
+    }
+
+    /// The same surface with a cell per simulation vertex: the vertices of one cell move by
+    /// one affine map that never inverts (e.g. render vertices embedded in one simulation
+    /// element, which the solver keeps at positive volume along every step), so primitives
+    /// whose vertices all lie in one cell can neither cross nor come closer than their rest
+    /// distance scaled by the map's smallest stretch: pairs within one cell are left out of
+    /// contact (between neighbours along the surface the barrier would only push the
+    /// surface against itself). [`NO_CELL`] for vertices that move otherwise.
+    pub fn with_cells(mut self, cell: Vec<u32>) -> Result<Self, ContactError> {
+        if cell.len() != self.vertex_count {
+            return Err(ContactError::InvalidMesh(format!(
+                "{} cells for {} vertices",
+                cell.len(),
+                self.vertex_count
+            )));
+        }
+        self.cell = cell;
+        Ok(self)
+    }
+
+    /// Whether all these vertices move with one cell (and so cannot meet each other).
+    #[inline]
+    pub fn one_cell(&self, ids: &[u32]) -> bool {
+        if self.cell.is_empty() {
+            return false;
+        }
+        let c = self.cell[ids[0] as usize];
+        c != NO_CELL && ids[1..].iter().all(|&v| self.cell[v as usize] == c)
     }
 
     /// Whether the point–triangle pair `(vertex, face)` was left out.

@@ -245,12 +245,34 @@ pub(crate) struct ContactSolve<'a> {
 }
 
 impl<'a> ContactSolve<'a> {
-    /// Starts at `x`: the active set, and κ balanced against the elastic gradient `g_el`.
+    /// Starts at `x`: the active set, and κ balanced against the elastic gradient `g_el`
+    /// (for one linearization: no line search will follow, so no Verlet list is built).
     pub(crate) fn start(
         model: &'a ContactModel,
         x: &[f64],
         bones: &BonePose,
         g_el: &[f64],
+    ) -> Result<Self, ContactError> {
+        Self::start_with(model, x, bones, g_el, false)
+    }
+
+    /// [`ContactSolve::start`] for a solve: the Verlet list the first line-search step needs
+    /// is built here and the active set read from it (one broad phase instead of two).
+    pub(crate) fn start_solve(
+        model: &'a ContactModel,
+        x: &[f64],
+        bones: &BonePose,
+        g_el: &[f64],
+    ) -> Result<Self, ContactError> {
+        Self::start_with(model, x, bones, g_el, true)
+    }
+
+    fn start_with(
+        model: &'a ContactModel,
+        x: &[f64],
+        bones: &BonePose,
+        g_el: &[f64],
+        with_list: bool,
     ) -> Result<Self, ContactError> {
         let m = model.face.vertex_count();
         let mut y = vec![0.0; 3 * m];
@@ -259,8 +281,14 @@ impl<'a> ContactSolve<'a> {
         let t = Instant::now();
         let mesh = model.face.mesh();
         let fixed = FixedPrimitives::new(mesh, &y)?;
-        let candidates = Candidates::build_with(mesh, &fixed, &y, dhat)?;
-        let collisions = Collisions::from_candidates(mesh, &candidates, &y, dhat)?;
+        let (verlet, close) = if with_list {
+            let list = VerletList::build(mesh, &fixed, &y, dhat, VERLET_SLACK * dhat)?;
+            let close = list.near(mesh, &y, &vec![0.0; 3 * m], dhat)?;
+            (Some(list), close)
+        } else {
+            (None, Candidates::build_with(mesh, &fixed, &y, dhat)?)
+        };
+        let collisions = Collisions::from_candidates(mesh, &close, &y, dhat)?;
         let broad = t.elapsed();
         let t = Instant::now();
         let unit = BarrierPotential::new(dhat, 1.0)?;
@@ -278,6 +306,7 @@ impl<'a> ContactSolve<'a> {
             broad_phase_time: broad,
             barrier_time: t.elapsed(),
             pose_stages: 1,
+            candidate_builds: usize::from(with_list),
             ..ContactStats::default()
         };
         let prev_min_distance2 = collisions.min_distance_squared();
@@ -292,7 +321,7 @@ impl<'a> ContactSolve<'a> {
             prev_min_distance2,
             dy: vec![0.0; 3 * m],
             candidates: Candidates::default(),
-            verlet: None,
+            verlet,
             fixed,
             y_trial: vec![0.0; 3 * m],
             trial_collisions: Collisions::default(),

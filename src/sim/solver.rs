@@ -523,7 +523,7 @@ impl Simulator {
         let mut g = vec![0.0; dim];
         self.gradient(frame, &state.x, &steps, &mut g);
         let mut contact = match model {
-            Some(m) => match ContactSolve::start(m, &state.x, bones, &g) {
+            Some(m) => match ContactSolve::start_solve(m, &state.x, bones, &g) {
                 Ok(c) => Some(c),
                 Err(e) => {
                     restore(state, steps, trial_steps);

@@ -143,6 +143,7 @@ impl Candidates {
             let tri = faces[f as usize];
             !tri.contains(&v)
                 && tri.iter().all(|&t| mesh.can_touch(v, t))
+                && !mesh.one_cell(&[v, tri[0], tri[1], tri[2]])
                 && !mesh.excludes_point_triangle(v, f)
         };
         let push_pt = |v: u32, f: u32, out: &mut Vec<PointTriangleCandidate>| {
@@ -184,6 +185,7 @@ impl Candidates {
                 && [a0, a1]
                     .iter()
                     .all(|&p| mesh.can_touch(p, b0) && mesh.can_touch(p, b1))
+                && !mesh.one_cell(&[a0, a1, b0, b1])
                 && !mesh.excludes_edge_edge(ea.min(eb), ea.max(eb))
         };
         let push_ee = |ea: u32, eb: u32, out: &mut Vec<EdgeEdgeCandidate>| {
@@ -220,6 +222,62 @@ impl Candidates {
             point_triangle,
             edge_edge,
         }
+    }
+}
+
+/// Trees over every edge and every face of a surface, laid out once (e.g. at rest) and refit
+/// at each query: the after-solve crossing check runs on every solve, and building a fresh
+/// tree and querying it edge by edge cost as much as a candidate build.
+#[derive(Clone, Debug)]
+pub(crate) struct EdgeFaceLayouts {
+    edge: Layout,
+    face: Layout,
+}
+
+impl EdgeFaceLayouts {
+    /// Layouts from the edges' and faces' centres at `x`.
+    pub(crate) fn new(mesh: &ContactMesh, x: &[f64]) -> Self {
+        let centre = |ids: &[u32]| {
+            Point3::from(
+                ids.iter().map(|&i| vertex(x, i)).sum::<super::math::Vec3>() / ids.len() as f64,
+            )
+        };
+        let edge: Vec<Point3<f64>> = mesh.edges().iter().map(|e| centre(e)).collect();
+        let face: Vec<Point3<f64>> = mesh.faces().iter().map(|f| centre(f)).collect();
+        Self {
+            edge: Layout::new(&edge),
+            face: Layout::new(&face),
+        }
+    }
+
+    /// Every `(edge, face)` whose exact boxes at `y` overlap, handed to `emit` (which keeps
+    /// what it wants); the output's order depends on the traversal only.
+    pub(crate) fn overlapping<T: Send>(
+        &self,
+        mesh: &ContactMesh,
+        y: &[f64],
+        emit: &(impl Fn(u32, u32, &mut Vec<T>) + Sync),
+    ) -> Vec<T> {
+        let box_of =
+            |ids: &[u32]| Box3::around_iter(ids.iter().map(|&i| Point3::from(vertex(y, i))), 0.0);
+        let edge_boxes: Vec<Box3> = mesh.edges().par_iter().map(|e| box_of(e)).collect();
+        let face_boxes: Vec<Box3> = mesh.faces().par_iter().map(|f| box_of(f)).collect();
+        let (edge_nodes, face_nodes) = (self.edge.fit(&edge_boxes), self.face.fit(&face_boxes));
+        pairs(
+            Fitted {
+                layout: &self.edge,
+                nodes: &edge_nodes,
+                items: &edge_boxes,
+            },
+            Fitted {
+                layout: &self.face,
+                nodes: &face_nodes,
+                items: &face_boxes,
+            },
+            false,
+            &|a: &Box3, b: &Box3| a.overlaps(b),
+            emit,
+        )
     }
 }
 

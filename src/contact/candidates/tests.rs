@@ -262,3 +262,58 @@ fn fixed_trees_give_the_same_candidates_and_refuse_moved_vertices() {
     moved[3 * rigid] += 0.01;
     assert!(Candidates::build_with(&mesh, &fixed, &moved, dhat).is_err());
 }
+
+/// Cells (vertices that move by one affine map, e.g. render vertices embedded in one
+/// simulation element) leave out exactly the pairs whose vertices all lie in one cell; every
+/// other close pair is still found, and vertices with no cell are never left out.
+#[test]
+fn pairs_within_one_cell_are_left_out_and_no_other() {
+    let (x, faces) = two_sheets(9, 0.03, [0.013, -0.021], 0.3, 0.01, 7);
+    let n = x.len() / 3;
+    let plain = two_sheet_mesh(&x, &faces);
+    // Cells of 3×3 neighbouring vertices of each 9×9 sheet; the last vertices belong to
+    // no cell.
+    let cell: Vec<u32> = (0..n as u32)
+        .map(|v| {
+            let (sheet, i, j) = (v / 81, (v % 81) / 9, v % 9);
+            if (v as usize) + 7 >= n {
+                crate::contact::mesh::NO_CELL
+            } else {
+                sheet * 9 + (i / 3) * 3 + j / 3
+            }
+        })
+        .collect();
+    assert!(plain.clone().with_cells(vec![0; n - 1]).is_err());
+    let celled = plain.clone().with_cells(cell.clone()).unwrap();
+    let dhat = 0.05;
+    let all = Candidates::build(&plain, &x, dhat).unwrap();
+    let kept = Candidates::build(&celled, &x, dhat).unwrap();
+    let one = |ids: &[u32]| {
+        let c = cell[ids[0] as usize];
+        c != crate::contact::mesh::NO_CELL && ids.iter().all(|&v| cell[v as usize] == c)
+    };
+    let want_pt: Vec<_> = all
+        .point_triangle
+        .iter()
+        .copied()
+        .filter(|p| {
+            let f = plain.faces()[p.face as usize];
+            !one(&[p.vertex, f[0], f[1], f[2]])
+        })
+        .collect();
+    let want_ee: Vec<_> = all
+        .edge_edge
+        .iter()
+        .copied()
+        .filter(|e| {
+            let [a0, a1] = plain.edges()[e.edge_a as usize];
+            let [b0, b1] = plain.edges()[e.edge_b as usize];
+            !one(&[a0, a1, b0, b1])
+        })
+        .collect();
+    assert!(want_pt.len() < all.point_triangle.len() && want_ee.len() < all.edge_edge.len());
+    assert!(!want_pt.is_empty() && !want_ee.is_empty());
+    assert_eq!(kept.point_triangle, want_pt);
+    assert_eq!(kept.edge_edge, want_ee);
+    assert!(!celled.one_cell(&[(n - 1) as u32, (n - 1) as u32]));
+}
