@@ -395,8 +395,9 @@ impl<'a> ContactSolve<'a> {
         // the pairs beyond at every short step made the final preset 1.5× slower).
         let long_step = cap * longest > slack;
         let rebuild = self.verlet.as_ref().is_none_or(|list| {
-            !list.covers(&self.y, &swept)
-                && !(long_step && list.moved_within(&self.y, &swept, VERLET_REUSE * slack))
+            let reusable = list.covers(&self.y, &swept)
+                || (long_step && list.moved_within(&self.y, &swept, VERLET_REUSE * slack));
+            !reusable
         });
         if rebuild {
             self.verlet = Some(VerletList::build(mesh, &self.fixed, &self.y, dhat, slack)?);

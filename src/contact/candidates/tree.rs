@@ -312,9 +312,9 @@ mod tests {
             let mut got = pairs(fa, fb, false, &test, &emit);
             got.sort_unstable();
             let mut want = Vec::new();
-            for i in 0..a.len() {
-                for j in 0..b.len() {
-                    if a[i].overlaps(&b[j]) {
+            for (i, p) in a.iter().enumerate() {
+                for (j, q) in b.iter().enumerate() {
+                    if p.overlaps(q) {
                         want.push((i as u32, j as u32));
                     }
                 }
