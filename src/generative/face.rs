@@ -7,6 +7,7 @@
 //! (a few thousand flops), N_A's remaining layers over the elements in f32, then per element
 //! `Ã = exp(R_φᵀ log A R_φ) = R_φᵀ A R_φ` (the warp commutes with exp; [`super::expm`]).
 
+use crate::generative::NetworkSet;
 use std::sync::Arc;
 
 use faer::{Mat, Par};

@@ -232,14 +232,6 @@ impl GenerativeNets {
             frame,
         })
     }
-
-    pub fn save(&self, path: &std::path::Path) -> Result<(), GenerativeError> {
-        Ok(self.to_checkpoint().save(path)?)
-    }
-
-    pub fn load(path: &std::path::Path) -> Result<Self, GenerativeError> {
-        Self::from_checkpoint(&Checkpoint::load(path)?)
-    }
 }
 
 /// A value as hex of its postcard encoding: bit-exact for floats (JSON numbers may not

@@ -2,6 +2,7 @@
 //! takes milliseconds), with per-element warp rotations and skin partly blended onto the jaw
 //! so every term of the chain rule is exercised.
 
+use crate::generative::NetworkSet;
 use nalgebra::{Point3, Rotation3, Vector3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;

@@ -1,6 +1,7 @@
 //! Tests of the expression/style networks (tiny networks, few iterations; the bundled sample's
 //! faces and mappings, actuations from its bases where the rig's fits are not the point).
 
+use crate::generative::NetworkSet;
 use std::sync::{Arc, OnceLock};
 
 use faer::Par;

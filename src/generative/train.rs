@@ -233,6 +233,16 @@ pub trait NetworkSet: Sized {
     fn networks_mut(&mut self) -> Vec<&mut Mlp<f64>>;
     fn to_checkpoint(&self) -> Checkpoint;
     fn from_checkpoint(ck: &Checkpoint) -> Result<Self, GenerativeError>;
+
+    /// Writes the networks as a checkpoint file.
+    fn save(&self, path: &std::path::Path) -> Result<(), GenerativeError> {
+        Ok(self.to_checkpoint().save(path)?)
+    }
+
+    /// Reads networks saved by [`NetworkSet::save`].
+    fn load(path: &std::path::Path) -> Result<Self, GenerativeError> {
+        Self::from_checkpoint(&Checkpoint::load(path)?)
+    }
 }
 
 /// What [`ModelTrainer`] trains on: data with a batch loss for its networks (stage 1's and

@@ -138,14 +138,6 @@ impl DisplacementNets {
         })
     }
 
-    pub fn save(&self, path: &std::path::Path) -> Result<(), GenerativeError> {
-        Ok(self.to_checkpoint().save(path)?)
-    }
-
-    pub fn load(path: &std::path::Path) -> Result<Self, GenerativeError> {
-        Self::from_checkpoint(&Checkpoint::load(path)?)
-    }
-
     /// The loss of one batch (module [`data`] makes them) and its gradient, **added** into
     /// `grads` (in [`DISPLACEMENT_NET_NAMES`] order):
     ///

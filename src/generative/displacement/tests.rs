@@ -1,6 +1,7 @@
 //! Tests of the displacement baseline and of the evaluation's volume and crossing metrics
 //! (tiny networks; labels simulated from the sample's actuation bases).
 
+use crate::generative::NetworkSet;
 use std::sync::{Arc, OnceLock};
 
 use faer::Par;
