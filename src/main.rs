@@ -100,6 +100,9 @@ enum BenchTarget {
         /// Steps per drag.
         #[arg(long, default_value_t = 20)]
         steps: usize,
+        /// Also measure with lip and teeth contact on (the editor's checkbox).
+        #[arg(long)]
+        contact: bool,
     },
     /// The quasistatic solver on generated slabs: factorization, iteration cost against its
     /// floor, time to tolerance from rest and warm-started.
@@ -284,8 +287,9 @@ fn main() -> Result<()> {
                     faces,
                     sliders,
                     steps,
+                    contact,
                 },
-        } => bench_editor(&sample, &faces, &sliders, steps)?,
+        } => bench_editor(&sample, &faces, &sliders, steps, contact)?,
         Command::Bench {
             target:
                 BenchTarget::Solver {
@@ -318,6 +322,7 @@ fn bench_editor(
     faces: &[String],
     sliders: &[String],
     steps: usize,
+    contact: bool,
 ) -> Result<()> {
     let sample = facesim::sample::Sample::load(sample_dir)
         .with_context(|| format!("loading the sample from {}", sample_dir.display()))?;
@@ -337,9 +342,14 @@ fn bench_editor(
             .find(|f| &f.name == name)
             .with_context(|| format!("the sample has no face '{name}'"))?;
         eprintln!("measuring {name}…");
-        rows.extend(facesim::bench::editor::bench_latency(
-            face, &sliders, steps,
-        )?);
+        for contact in std::iter::once(false).chain(contact.then_some(true)) {
+            rows.extend(facesim::bench::editor::bench_latency(
+                face.clone(),
+                &sliders,
+                steps,
+                contact,
+            )?);
+        }
     }
     print!("{}", facesim::bench::editor::table(&rows));
     Ok(())

@@ -19,6 +19,8 @@ use super::percentile;
 pub struct LatencyRow {
     pub face: String,
     pub quality: Quality,
+    /// Lip and teeth contact on.
+    pub contact: bool,
     pub samples: usize,
     pub median_ms: f64,
     pub p95_ms: f64,
@@ -39,17 +41,20 @@ pub fn drag(slider: &str, steps: usize) -> Vec<ExpressionCode> {
         .collect()
 }
 
-/// Latency rows for `face` at every preset; `sliders` are dragged one after another.
+/// Latency rows for `face` at every preset, contact on or off; `sliders` are dragged one
+/// after another.
 pub fn bench_latency(
     face: SessionFace,
     sliders: &[&str],
     steps: usize,
+    contact: bool,
 ) -> Result<Vec<LatencyRow>, SessionError> {
     let name = face.name.clone();
     let mut rows = Vec::new();
     for quality in Quality::ALL {
         let session = Session::new(vec![face.clone()], quality)?;
         session.submit(Request::Refine(false))?;
+        session.submit(Request::Contact(contact))?;
         let timeout = Duration::from_secs(120);
         session
             .wait_newer(None, timeout)
@@ -72,6 +77,7 @@ pub fn bench_latency(
         rows.push(LatencyRow {
             face: name.clone(),
             quality,
+            contact,
             samples: ms.len(),
             median_ms: percentile(&ms, 0.5),
             p95_ms: percentile(&ms, 0.95),
@@ -85,12 +91,19 @@ pub fn bench_latency(
 /// A markdown table of `rows`.
 pub fn table(rows: &[LatencyRow]) -> String {
     let mut s = String::from(
-        "| face | preset | samples | median ms | p95 ms | median iterations | failed |\n|---|---|---:|---:|---:|---:|---:|\n",
+        "| face | preset | contact | samples | median ms | p95 ms | median iterations | failed |\n|---|---|---|---:|---:|---:|---:|---:|\n",
     );
     for r in rows {
         s += &format!(
-            "| {} | {} | {} | {:.1} | {:.1} | {} | {} |\n",
-            r.face, r.quality, r.samples, r.median_ms, r.p95_ms, r.median_iterations, r.errors
+            "| {} | {} | {} | {} | {:.1} | {:.1} | {} | {} |\n",
+            r.face,
+            r.quality,
+            if r.contact { "on" } else { "off" },
+            r.samples,
+            r.median_ms,
+            r.p95_ms,
+            r.median_iterations,
+            r.errors
         );
     }
     s
@@ -112,12 +125,26 @@ mod tests {
     #[test]
     fn latency_rows_cover_every_preset() {
         let face = crate::session::tests::test_face("neutral");
-        let rows = bench_latency(face, &["jawOpen"], 4).unwrap();
+        let rows = bench_latency(face, &["jawOpen"], 4, false).unwrap();
         assert_eq!(rows.len(), 3);
         assert!(
             rows.iter()
                 .all(|r| r.samples == 4 && r.errors == 0 && r.median_ms > 0.0)
         );
-        assert!(table(&rows).contains("| neutral | interactive | 4 |"));
+        assert!(table(&rows).contains("| neutral | interactive | off | 4 |"));
+    }
+
+    /// With contact on, every frame of the drag comes back valid (the solver's crossing
+    /// check passed) and the rows say contact was on.
+    #[test]
+    fn latency_rows_with_contact_on() {
+        let face = crate::session::tests::test_face("neutral");
+        let rows = bench_latency(face, &["mouthSmile_L"], 4, true).unwrap();
+        assert_eq!(rows.len(), 3);
+        assert!(
+            rows.iter()
+                .all(|r| r.contact && r.samples == 4 && r.errors == 0)
+        );
+        assert!(table(&rows).contains("| neutral | interactive | on | 4 |"));
     }
 }
