@@ -232,6 +232,19 @@ fn main() -> Result<()> {
                 &codes,
                 facesim::sim::Quality::Interactive,
                 mode,
+                &mut |frame, r| {
+                    let on = if r.contact { "contact" } else { "no contact" };
+                    let why = r
+                        .error
+                        .as_deref()
+                        .map(|e| format!(": {e}"))
+                        .unwrap_or_default();
+                    eprintln!(
+                        "frame {frame} ({on}): {:?} in {:.2} s{why}",
+                        r.outcome,
+                        r.time.as_secs_f64()
+                    );
+                },
             )
             .context("contact sweep")?;
             print!("{}", report.summary());

@@ -206,14 +206,28 @@ impl Tally {
     }
 }
 
+/// One solve of a swept frame, as it finishes (for progress reports: a long sweep that is
+/// stopped keeps what it printed).
+#[derive(Clone, Debug)]
+pub struct SolveReport {
+    /// Contact on for this solve.
+    pub contact: bool,
+    pub outcome: FrameOutcome,
+    pub time: Duration,
+    /// The solver's message for a failed solve.
+    pub error: Option<String>,
+}
+
 /// Solves `codes` in order on `model` driven by `actuation`, at `quality`, in `mode`; a
-/// failed frame restarts the next one from rest.
+/// failed frame restarts the next one from rest. `on_solve` hears of every solve (the
+/// frame's index and how it went) as it finishes.
 pub fn sweep(
     model: &FaceModel,
     actuation: &dyn ActuationModel,
     codes: &[Codes],
     quality: Quality,
     mode: SweepMode,
+    on_solve: &mut dyn FnMut(usize, &SolveReport),
 ) -> Result<SweepReport, SimError> {
     let begin = std::time::Instant::now();
     let mut sim = model.simulator()?;
@@ -234,7 +248,23 @@ pub fn sweep(
         mode,
         ..SweepReport::default()
     };
-    for c in codes {
+    let mut tell = |frame: usize,
+                    contact: bool,
+                    r: &Result<SolveStats, SimError>,
+                    time: Duration,
+                    outcome: FrameOutcome| {
+        on_solve(
+            frame,
+            &SolveReport {
+                contact,
+                outcome,
+                time,
+                error: r.as_ref().err().map(|e| e.to_string()),
+            },
+        );
+        outcome
+    };
+    for (frame, c) in codes.iter().enumerate() {
         let a = actuation
             .actuate(c)
             .map_err(|e| SimError::Setup(format!("actuation: {e}")))?;
@@ -251,12 +281,14 @@ pub fn sweep(
             if mode == SweepMode::NoContact {
                 failed = r.is_err();
             }
-            without.record(&r, t)
+            let outcome = without.record(&r, t);
+            tell(frame, false, &r, t, outcome)
         });
         let on_outcome = (mode != SweepMode::NoContact).then(|| {
             let (r, t) = solve(&sim, &a, &mut state, &on);
             failed = r.is_err();
-            with.record(&r, t)
+            let outcome = with.record(&r, t);
+            tell(frame, true, &r, t, outcome)
         });
         if on_outcome == Some(FrameOutcome::Inverted) {
             match off_outcome {
@@ -302,12 +334,14 @@ mod tests {
                 .iter()
                 .all(|c| c.expression.0.iter().all(|w| (-0.5..=1.5).contains(w)))
         );
+        let mut heard = Vec::new();
         let report = sweep(
             &face.model,
             face.actuation.as_ref(),
             &codes,
             Quality::Interactive,
             SweepMode::Compare,
+            &mut |frame, r| heard.push((frame, r.contact, r.outcome)),
         )
         .unwrap();
         let on = report.contact.as_ref().unwrap();
@@ -322,6 +356,14 @@ mod tests {
             "{report:?}"
         );
         assert_eq!(report.outcomes.len(), 4);
+        // Every solve was reported as it finished, without contact first, in frame order.
+        let told: Vec<_> = report
+            .outcomes
+            .iter()
+            .enumerate()
+            .flat_map(|(i, (on, off))| [(i, false, off.unwrap()), (i, true, on.unwrap())])
+            .collect();
+        assert_eq!(heard, told);
         assert!(
             report
                 .outcomes
