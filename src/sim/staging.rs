@@ -14,10 +14,13 @@
 //! region moves by the bone's own affine motion), lips pressed against each other move
 //! together instead of into each other, and lips the teeth press on are pushed along. The
 //! carried state is used when the straight path of the whole contact surface (soft and
-//! rigid) to it is certified by CCD; where the prediction would take an element past the
-//! volume barrier's step limit ([`STEP_VOLUME_KEPT`] of its volume) it is shortened to stay
-//! within it. So a stage never starts crossed or folded. When no carry is certified, only
-//! the teeth move (the tissue stays), and failing that the caller shortens the stage.
+//! rigid) to it is certified by CCD and it keeps every element within the volume barrier's
+//! step limit ([`STEP_VOLUME_KEPT`] of its volume). Where the prediction fails that locally
+//! (nearly collapsed elements, close pairs its curvature does not know), the offending parts
+//! are moved rigidly instead ([`Simulator::fitted_carry`]); failing that, the carry is
+//! shortened to the volume limit. So a stage never starts crossed or folded. When no carry
+//! is certified, only the teeth move (the tissue stays), and failing that the caller
+//! shortens the stage.
 
 use nalgebra::Point3;
 
