@@ -1,11 +1,12 @@
 //! Per-frame view of the random-code sweep with contact on (`facesim bench contact --sweep`
-//! keeps only outcomes): for codes `FROM..TO` of the seeded sweep (seed 1, sliders in
-//! `[-0.5, 1.5]`, interactive preset, warm-started, a failed frame restarts the next from
-//! rest), each frame's outcome, pose stages (and how many carried the tissue), iterations,
-//! wall time and how far the jaw moved from the previous frame.
+//! keeps only outcomes): for codes `FROM..TO` of the seeded sweep (seed `SEED`, 1 by default,
+//! as `--sweep-seed`; sliders in `[-0.5, 1.5]`, interactive preset, warm-started, a failed
+//! frame restarts the next from rest), each frame's outcome, pose stages (and how many
+//! carried the tissue), iterations, wall time and how far the jaw moved from the previous
+//! frame.
 //!
-//! `cargo run --release -p facesim --example sweep_stages -- 0 30` (from the repository root;
-//! frames before `FROM` are solved too, so the chain is the sweep's, but not printed).
+//! `cargo run --release -p facesim --example sweep_stages -- 0 30 [SEED]` (from the repository
+//! root; frames before `FROM` are solved too, so the chain is the sweep's, but not printed).
 
 use anyhow::{Context, Result, bail};
 use facesim::bench::contact_sweep::random_codes;
@@ -20,8 +21,12 @@ fn main() -> Result<()> {
                 .with_context(|| format!("'{a}' is not a frame index"))
         })
         .collect::<Result<_>>()?;
-    let [from, to] = args[..] else {
-        bail!("usage: sweep_stages FROM TO (frame indices, FROM < TO)");
+    let (from, to, seed) = match args[..] {
+        [from, to] => (from, to, 1),
+        [from, to, seed] => (from, to, seed as u64),
+        _ => bail!(
+            "usage: sweep_stages FROM TO [SEED] (frame indices, FROM < TO; seed 1 by default)"
+        ),
     };
     if from >= to {
         bail!("FROM ({from}) must be below TO ({to})");
@@ -41,7 +46,7 @@ fn main() -> Result<()> {
     let settings = Quality::Interactive.settings();
     let mut state = sim.rest_state();
     let mut previous = BonePose::default();
-    for (i, code) in random_codes(to, 1).iter().enumerate() {
+    for (i, code) in random_codes(to, seed).iter().enumerate() {
         let a = face.actuation.actuate(code)?;
         let bones = a.bones();
         let (p, q) = (previous.jaw.params(), bones.jaw.params());
