@@ -333,6 +333,12 @@ impl<'a> ContactSolve<'a> {
         Ok(solve)
     }
 
+    /// The smallest distance between contact surfaces at the current `x` among the pairs
+    /// within d̂ (d̂ when none is that close).
+    pub(crate) fn min_distance(&self) -> f64 {
+        self.collisions.min_distance_squared().sqrt()
+    }
+
     /// `κ·B` at the current `x`.
     pub(crate) fn energy(&self) -> f64 {
         self.potential.stiffness * self.barrier

@@ -397,15 +397,11 @@ impl Simulator {
             let mut s = 1.0;
             let here = lerp_pose(&from, bones, reached);
             // Only a pose change moves anything (an unchanged jaw needs no broad phase here).
-            let gap = if here == *bones {
-                model.face.dhat()
-            } else {
-                self.obstacle_gap(model, &state.x, &here)?
-            };
             let carry = if here == *bones {
                 None
             } else {
                 let carrier = self.carrier(model, actuations, &state.x, &state.steps, &here)?;
+                let gap = carrier.closest_gap();
                 loop {
                     let pose = lerp_pose(&from, bones, s);
                     if let Some(start) = self.stage_start(&carrier, &state.x, &pose, gap)? {

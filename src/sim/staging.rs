@@ -75,7 +75,17 @@ impl Simulator {
             y,
         })
     }
+}
 
+impl Carrier<'_> {
+    /// The smallest distance between contact surfaces within d̂ at the carrier's state (d̂
+    /// when none is that close): the gap a stage's certificate keeps half of.
+    pub(crate) fn closest_gap(&self) -> f64 {
+        self.contact.min_distance()
+    }
+}
+
+impl Simulator {
     /// The tissue's predicted displacement when the bones go from the carrier's pose to `b`:
     /// `H⁻¹·(K_a·Δtarget − [∇²B]·Δy_teeth)`, the first-order change of the equilibrium.
     pub(crate) fn carried_displacement(
@@ -208,19 +218,6 @@ impl Simulator {
             }
         }
         Ok(None)
-    }
-
-    /// The smallest distance between contact surfaces within d̂ at pose `a` with the tissue
-    /// at `x` (d̂ when none is that close).
-    pub(crate) fn obstacle_gap(
-        &self,
-        model: &ContactModel,
-        x: &[f64],
-        a: &BonePose,
-    ) -> Result<f64, SimError> {
-        let mut ya = vec![0.0; 3 * model.face.vertex_count()];
-        model.face.positions(x, a, &mut ya);
-        Ok(model.face.collisions(&ya)?.min_distance_squared().sqrt())
     }
 
     /// Whether the straight move of every contact vertex from (tissue `x`, pose `a`) to
@@ -608,7 +605,17 @@ mod tests {
             .carrier(model, &a.tensors, &state.x, &state.steps, &from)
             .unwrap();
         let mut dx = sim.carried_displacement(&carrier, &state.x, &to).unwrap();
-        let gap = sim.obstacle_gap(model, &state.x, &from).unwrap();
+        let gap = carrier.closest_gap();
+        // The carrier's own active set gives the closest gap (no broad phase of its own).
+        let mut y = vec![0.0; 3 * model.face.vertex_count()];
+        model.face.positions(&state.x, &from, &mut y);
+        let closest = model
+            .face
+            .collisions(&y)
+            .unwrap()
+            .min_distance_squared()
+            .sqrt();
+        assert_eq!(gap, closest);
         // The prediction itself is certified as it is.
         let plain = sim
             .fitted_carry(&carrier, &state.x, &dx, &to, gap)
