@@ -17,11 +17,9 @@
 //! against each other are the jaw pose's business), and so are pairs already within d̂ at
 //! rest (neighbours along the finely tessellated surface, e.g. where the mouth socket turns
 //! from embedded to rigid): they are recorded at construction ([`FaceContact::rest_exclusions`]).
-//! So are pairs whose vertices are all embedded in one simulation element
-//! ([`ContactMesh::with_cells`]): they move by that element's affine map, which the solver
-//! never lets invert (the volume barrier's step limit holds along every line-search step and
-//! every carried stage start), so they cannot cross — about half of the pairs within a few d̂
-//! of each other on the sample, which the broad phase no longer measures at every build.
+//! The after-solve crossing check skips pairs whose vertices are all embedded in one
+//! simulation element ([`ContactMesh::with_cells`]): they move by that element's affine
+//! map, which the solver never lets invert, so they cannot cross.
 //! Edge–triangle crossings present at rest (the rig's own, between pieces the importer does
 //! not repair) are recorded and left out of the after-solve check, which reports only new
 //! ones.

@@ -159,11 +159,11 @@ impl ContactMesh {
 
     /// The same surface with a cell per simulation vertex: the vertices of one cell move by
     /// one affine map that never inverts (e.g. render vertices embedded in one simulation
-    /// element, which the solver keeps at positive volume along every step), so primitives
-    /// whose vertices all lie in one cell can neither cross nor come closer than their rest
-    /// distance scaled by the map's smallest stretch: pairs within one cell are left out of
-    /// contact (between neighbours along the surface the barrier would only push the
-    /// surface against itself). [`NO_CELL`] for vertices that move otherwise.
+    /// element, which the solver keeps at positive volume), so primitives whose vertices all
+    /// lie in one cell cannot cross each other and the crossing check skips them. Contact
+    /// still tracks them: left out of the barrier and CCD, the surface folded inside
+    /// elements until pairs contact does not track crossed (5 of 996 random codes).
+    /// [`NO_CELL`] for vertices that move otherwise.
     pub fn with_cells(mut self, cell: Vec<u32>) -> Result<Self, ContactError> {
         if cell.len() != self.vertex_count {
             return Err(ContactError::InvalidMesh(format!(
@@ -176,7 +176,7 @@ impl ContactMesh {
         Ok(self)
     }
 
-    /// Whether all these vertices move with one cell (and so cannot meet each other).
+    /// Whether all these vertices move with one cell (and so cannot cross each other).
     #[inline]
     pub fn one_cell(&self, ids: &[u32]) -> bool {
         if self.cell.is_empty() {
@@ -295,5 +295,24 @@ impl ContactMesh {
             return Err(ContactError::NonFinite(v as usize));
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Only vertices that all share one cell count as one cell; vertices with no cell
+    /// never do, and a cell list of the wrong length is refused.
+    #[test]
+    fn one_cell_needs_every_vertex_in_the_same_cell() {
+        let rest = vec![0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 1.0, 1.0, 0.0];
+        let mesh = ContactMesh::new(&rest, vec![[0, 1, 2], [1, 3, 2]]).unwrap();
+        assert!(!mesh.one_cell(&[0, 1, 2]));
+        assert!(mesh.clone().with_cells(vec![0; 3]).is_err());
+        let celled = mesh.with_cells(vec![7, 7, 7, NO_CELL]).unwrap();
+        assert!(celled.one_cell(&[0, 1, 2]));
+        assert!(!celled.one_cell(&[1, 3, 2]));
+        assert!(!celled.one_cell(&[3, 3]));
     }
 }

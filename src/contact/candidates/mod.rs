@@ -143,7 +143,6 @@ impl Candidates {
             let tri = faces[f as usize];
             !tri.contains(&v)
                 && tri.iter().all(|&t| mesh.can_touch(v, t))
-                && !mesh.one_cell(&[v, tri[0], tri[1], tri[2]])
                 && !mesh.excludes_point_triangle(v, f)
         };
         let push_pt = |v: u32, f: u32, out: &mut Vec<PointTriangleCandidate>| {
@@ -185,7 +184,6 @@ impl Candidates {
                 && [a0, a1]
                     .iter()
                     .all(|&p| mesh.can_touch(p, b0) && mesh.can_touch(p, b1))
-                && !mesh.one_cell(&[a0, a1, b0, b1])
                 && !mesh.excludes_edge_edge(ea.min(eb), ea.max(eb))
         };
         let push_ee = |ea: u32, eb: u32, out: &mut Vec<EdgeEdgeCandidate>| {
