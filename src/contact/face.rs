@@ -17,9 +17,10 @@
 //! against each other are the jaw pose's business), and so are pairs already within d̂ at
 //! rest (neighbours along the finely tessellated surface, e.g. where the mouth socket turns
 //! from embedded to rigid): they are recorded at construction ([`FaceContact::rest_exclusions`]).
-//! The after-solve crossing check skips pairs whose vertices are all embedded in one
-//! simulation element ([`ContactMesh::with_cells`]): they move by that element's affine
-//! map, which the solver never lets invert, so they cannot cross.
+//! The solver's after-solve crossing check ([`FaceContact::new_crossings_of_solve`]) skips
+//! pairs whose vertices are all embedded in one simulation element
+//! ([`ContactMesh::with_cells`]): they move by that element's affine map, which the solver
+//! never lets invert, so they cannot cross.
 //! Edge–triangle crossings present at rest (the rig's own, between pieces the importer does
 //! not repair) are recorded and left out of the after-solve check, which reports only new
 //! ones.
@@ -288,7 +289,7 @@ impl FaceContact {
             lip_line: line_points,
             crossing_layouts,
         };
-        contact.rest_crossings = contact.crossings(&rest);
+        contact.rest_crossings = contact.crossings(&rest, false);
         Ok(contact)
     }
 
@@ -398,13 +399,26 @@ impl FaceContact {
     /// `(edge, face)` sorted. Rigid–rigid pairs (teeth against teeth: the jaw pose's
     /// business) and pairs sharing a vertex are not checked.
     pub fn new_crossings(&self, y: &[f64]) -> Vec<(u32, u32)> {
-        self.crossings(y)
+        self.crossings(y, false)
             .into_iter()
             .filter(|p| self.rest_crossings.binary_search(p).is_err())
             .collect()
     }
 
-    fn crossings(&self, y: &[f64]) -> Vec<(u32, u32)> {
+    /// [`FaceContact::new_crossings`] for positions `y` of a solver state, `y` =
+    /// [`FaceContact::positions`] of tissue positions whose elements are all non-inverted:
+    /// pairs whose vertices are all embedded in one element move by its affine map and
+    /// cannot cross, so they are skipped (not so for positions from elsewhere, e.g. a rig's
+    /// targets or a displacement field, which may fold inside an element).
+    pub fn new_crossings_of_solve(&self, y: &[f64]) -> Vec<(u32, u32)> {
+        self.crossings(y, true)
+            .into_iter()
+            .filter(|p| self.rest_crossings.binary_search(p).is_err())
+            .collect()
+    }
+
+    /// `skip_cells`: leave out pairs within one cell (see [`FaceContact::new_crossings_of_solve`]).
+    fn crossings(&self, y: &[f64], skip_cells: bool) -> Vec<(u32, u32)> {
         let faces = self.mesh.faces();
         let edges = self.mesh.edges();
         let mut out = self
@@ -412,7 +426,9 @@ impl FaceContact {
             .overlapping(&self.mesh, y, &|e, f, out| {
                 let [a, b] = edges[e as usize];
                 let t = faces[f as usize];
-                if t.contains(&a) || t.contains(&b) || self.mesh.one_cell(&[a, b, t[0], t[1], t[2]])
+                if t.contains(&a)
+                    || t.contains(&b)
+                    || (skip_cells && self.mesh.one_cell(&[a, b, t[0], t[1], t[2]]))
                 {
                     return;
                 }

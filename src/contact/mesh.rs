@@ -160,7 +160,7 @@ impl ContactMesh {
     /// The same surface with a cell per simulation vertex: the vertices of one cell move by
     /// one affine map that never inverts (e.g. render vertices embedded in one simulation
     /// element, which the solver keeps at positive volume), so primitives whose vertices all
-    /// lie in one cell cannot cross each other and the crossing check skips them. Contact
+    /// lie in one cell cannot cross each other and the solver's crossing check skips them. Contact
     /// still tracks them: left out of the barrier and CCD, the surface folded inside
     /// elements until pairs contact does not track crossed (5 of 996 random codes).
     /// [`NO_CELL`] for vertices that move otherwise.

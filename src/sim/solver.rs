@@ -479,7 +479,7 @@ impl Simulator {
         // The intersection-free guarantee, checked on what the artist sees.
         let mut y = vec![0.0; 3 * model.face.vertex_count()];
         model.face.positions(&state.x, bones, &mut y);
-        let crossings = model.face.new_crossings(&y);
+        let crossings = model.face.new_crossings_of_solve(&y);
         stats.wall_time = start.elapsed();
         if !crossings.is_empty() {
             if let Some(c) = stats.contact.as_mut() {

@@ -302,7 +302,7 @@ impl Simulator {
         let moved: Vec<f64> = x.iter().zip(dx).map(|(p, d)| p + d).collect();
         let mut y = vec![0.0; 3 * model.face.vertex_count()];
         model.face.positions(&moved, b, &mut y);
-        model.face.new_crossings(&y).is_empty()
+        model.face.new_crossings_of_solve(&y).is_empty()
     }
 
     /// How a stage from the carrier's pose to pose `b` may start (`None` when no move is
