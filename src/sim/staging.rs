@@ -249,9 +249,7 @@ impl Simulator {
         b: &BonePose,
         gap: f64,
     ) -> Result<Vec<[u32; 4]>, SimError> {
-        use crate::contact::ccd::{edge_edge_ccd, point_triangle_ccd};
         use crate::contact::{Candidates, CcdOptions};
-        use rayon::prelude::*;
         let m = 3 * model.face.vertex_count();
         let (mut ya, mut yb) = (vec![0.0; m], vec![0.0; m]);
         model.face.positions(x, a, &mut ya);
@@ -270,27 +268,11 @@ impl Simulator {
         };
         let mesh = model.face.mesh();
         let candidates = Candidates::build_swept(mesh, &ya, &dy, opts.min_distance)?;
-        let stencil = |v: &[f64], ids: [u32; 4]| {
-            ids.map(|i| {
-                nalgebra::Vector3::from_column_slice(&v[3 * i as usize..3 * i as usize + 3])
-            })
-        };
-        let (faces, edges) = (mesh.faces(), mesh.edges());
-        let pt = candidates.point_triangle.par_iter().filter_map(|c| {
-            let f = faces[c.face as usize];
-            let ids = [c.vertex, f[0], f[1], f[2]];
-            let r = point_triangle_ccd(&stencil(&ya, ids), &stencil(&dy, ids), 1.0, &opts);
-            (r.toi < 1.0).then_some(ids)
-        });
-        let ee = candidates.edge_edge.par_iter().filter_map(|c| {
-            let [a0, a1] = edges[c.edge_a as usize];
-            let [b0, b1] = edges[c.edge_b as usize];
-            let ids = [a0, a1, b0, b1];
-            let r = edge_edge_ccd(&stencil(&ya, ids), &stencil(&dy, ids), 1.0, &opts);
-            (r.toi < 1.0).then_some(ids)
-        });
-        let mut hits: Vec<[u32; 4]> = pt.collect();
-        hits.extend(ee.collect::<Vec<_>>());
+        let hits = crate::contact::ccd::pair_steps(mesh, &candidates, &ya, &dy, &opts)?
+            .into_iter()
+            .filter(|(_, _, r)| r.toi < 1.0)
+            .map(|(_, ids, _)| ids)
+            .collect();
         Ok(hits)
     }
 

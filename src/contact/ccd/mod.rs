@@ -119,6 +119,35 @@ pub fn collision_free_step_over(
     dx: &[f64],
     opts: &CcdOptions,
 ) -> Result<StepReport, ContactError> {
+    let results = pair_steps(mesh, candidates, x, dx, opts)?;
+    let mut report = StepReport {
+        step: 1.0,
+        limiting: None,
+        candidates: results.len(),
+        capped: 0,
+    };
+    for (kind, ids, r) in results {
+        if r.outcome == CcdOutcome::IterationCap {
+            report.capped += 1;
+        }
+        if r.toi < report.step {
+            report.step = r.toi;
+            report.limiting = Some((kind, ids, r.outcome));
+        }
+    }
+    Ok(report)
+}
+
+/// Every candidate pair's own CCD along the step `x → x + dx` (kind, vertex ids, result),
+/// point–triangle pairs first, each list in candidate order: [`collision_free_step_over`]
+/// takes the earliest; a caller that needs every pair stopping short filters them.
+pub fn pair_steps(
+    mesh: &ContactMesh,
+    candidates: &Candidates,
+    x: &[f64],
+    dx: &[f64],
+    opts: &CcdOptions,
+) -> Result<Vec<(CollisionKind, [u32; 4], NarrowPhase)>, ContactError> {
     opts.validate()?;
     mesh.check_positions(x)?;
     mesh.check_positions(dx)?;
@@ -139,22 +168,7 @@ pub fn collision_free_step_over(
     });
     let mut results: Vec<_> = pt.collect();
     results.extend(ee.collect::<Vec<_>>());
-    let mut report = StepReport {
-        step: 1.0,
-        limiting: None,
-        candidates: results.len(),
-        capped: 0,
-    };
-    for (kind, ids, r) in results {
-        if r.outcome == CcdOutcome::IterationCap {
-            report.capped += 1;
-        }
-        if r.toi < report.step {
-            report.step = r.toi;
-            report.limiting = Some((kind, ids, r.outcome));
-        }
-    }
-    Ok(report)
+    Ok(results)
 }
 
 #[cfg(test)]
