@@ -521,6 +521,19 @@ mod tests {
         (sim, face.actuation)
     }
 
+    /// Checked independently of the solver's own final check: the solved state crosses no
+    /// contact surface (every pair checked) and folds no element.
+    fn assert_crossing_and_fold_free(sim: &Simulator, state: &crate::sim::SimState, frame: usize) {
+        let model = sim.contact.as_ref().unwrap();
+        let mut y = vec![0.0; 3 * model.face.vertex_count()];
+        model.face.positions(&state.x, &state.bones, &mut y);
+        assert!(model.face.new_crossings(&y).is_empty(), "frame {frame}");
+        assert!(
+            state.steps.iter().all(|s| s.volume_ratio > 0.0),
+            "frame {frame}"
+        );
+    }
+
     /// Clusters merge through shared vertices and keep the bone they were joined with (none
     /// when joined with both); a cluster with no bone gets the rigid motion its carried
     /// displacements make, exactly when they are one.
@@ -661,14 +674,8 @@ mod tests {
                 "frame {frame}: {c} stages, {:.1} s",
                 stats.wall_time.as_secs_f64()
             );
-            let model = sim.contact.as_ref().unwrap();
-            let mut y = vec![0.0; 3 * model.face.vertex_count()];
-            model.face.positions(&state.x, &bones, &mut y);
-            assert!(model.face.new_crossings(&y).is_empty(), "frame {frame}");
-            assert!(
-                state.steps.iter().all(|s| s.volume_ratio > 0.0),
-                "frame {frame}"
-            );
+            assert_eq!(state.bones, bones);
+            assert_crossing_and_fold_free(&sim, &state, frame);
             if frame == 10 {
                 assert!(c <= 16, "frame 10: {c} stages");
             }
@@ -683,16 +690,11 @@ mod tests {
     /// that translation, contact curvature and the teeth's push included.
     #[test]
     fn large_jaw_swings_solve_in_few_carried_stages() {
-        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
-        let sample = crate::sample::Sample::load(root.join(crate::sample::SAMPLE_DIR)).unwrap();
-        let face = sample.faces.iter().find(|f| f.identity.is_none()).unwrap();
-        let mut sim = face.model.simulator().unwrap();
-        let contact = FaceContact::new(&face.model, &FaceContactSettings::default()).unwrap();
-        sim.set_contact(contact).unwrap();
+        let (sim, actuation) = sample_sim();
         let settings = Quality::Interactive.settings();
         let mut state = sim.rest_state();
         for (frame, code) in random_codes(2, 1).iter().enumerate() {
-            let a = face.actuation.actuate(code).unwrap();
+            let a = actuation.actuate(code).unwrap();
             let bones = a.bones();
             let stats = sim
                 .solve(&a.tensors, &bones, &mut state, &settings)
@@ -715,17 +717,10 @@ mod tests {
                 "frame {frame}: the tissue was never carried"
             );
             assert_eq!(state.bones, bones);
-            // Checked independently of the solver's own final check.
-            let model = sim.contact.as_ref().unwrap();
-            let mut y = vec![0.0; 3 * model.face.vertex_count()];
-            model.face.positions(&state.x, &bones, &mut y);
-            assert!(model.face.new_crossings(&y).is_empty(), "frame {frame}");
-            assert!(
-                state.steps.iter().all(|s| s.volume_ratio > 0.0),
-                "frame {frame}"
-            );
+            assert_crossing_and_fold_free(&sim, &state, frame);
 
             if frame == 0 {
+                let model = sim.contact.as_ref().unwrap();
                 // Contact is active here (lips pressed, teeth close): translate the head.
                 assert!(c.active_pairs > 0);
                 let shift = Vector3::new(0.3, -0.2, 0.1);
