@@ -235,11 +235,7 @@ pub(crate) struct EdgeFaceLayouts {
 impl EdgeFaceLayouts {
     /// Layouts from the edges' and faces' centres at `x`.
     pub(crate) fn new(mesh: &ContactMesh, x: &[f64]) -> Self {
-        let centre = |ids: &[u32]| {
-            Point3::from(
-                ids.iter().map(|&i| vertex(x, i)).sum::<super::math::Vec3>() / ids.len() as f64,
-            )
-        };
+        let centre = |ids: &[u32]| centre(x, ids);
         let edge: Vec<Point3<f64>> = mesh.edges().iter().map(|e| centre(e)).collect();
         let face: Vec<Point3<f64>> = mesh.faces().iter().map(|f| centre(f)).collect();
         Self {
@@ -310,11 +306,7 @@ impl MovingLayouts {
             .copied()
             .filter(|&v| universal(v))
             .collect();
-        let centre = |ids: &[u32]| {
-            Point3::from(
-                ids.iter().map(|&i| vertex(x, i)).sum::<super::math::Vec3>() / ids.len() as f64,
-            )
-        };
+        let centre = |ids: &[u32]| centre(x, ids);
         Self {
             vertex: Layout::new(&vertices.iter().map(|&v| centre(&[v])).collect::<Vec<_>>()),
             face: Layout::new(
@@ -682,6 +674,11 @@ fn gap_and_reach(at_a: &Box3, moved_a: &Box3, at_b: &Box3, moved_b: &Box3) -> (f
         far += f * f;
     }
     (f64::sqrt(gap), f64::sqrt(far))
+}
+
+/// The centre of a primitive (its vertex ids) at `x`: what a tree layout sorts by.
+fn centre(x: &[f64], ids: &[u32]) -> Point3<f64> {
+    Point3::from(ids.iter().map(|&i| vertex(x, i)).sum::<super::math::Vec3>() / ids.len() as f64)
 }
 
 /// Overlap of a moving box grown by `extra` with a fixed one.
