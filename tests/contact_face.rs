@@ -63,16 +63,17 @@ fn contact_region_is_the_mouth() {
     let c = contact();
     let [skin, socket, upper, lower] = c.piece_counts();
     eprintln!(
-        "contact vertices: {} (lips {skin}, mouth {socket}, upper teeth {upper}, lower teeth {lower}), faces {}, edges {}, sim region {}, rest exclusions {:?}, rest crossings {}",
+        "contact vertices: {} (lips {skin}, mouth {socket}, upper teeth {upper}, lower teeth {lower}), faces {}, edges {}, sim region {}, close pairs {:?}, rest crossings {}",
         c.vertex_count(),
         c.mesh().faces().len(),
         c.mesh().edges().len(),
         c.region_sim_vertices().len(),
-        c.rest_exclusions(),
+        c.close_pairs(),
         c.rest_crossing_count()
     );
     assert!(skin > 100 && socket > 100 && upper > 50 && lower > 50);
-    // At rest nothing is within d̂ except the excluded pairs, so the barrier is zero.
+    // At rest no pair is within its activation distance (d̂, or half the rest distance of
+    // a pair closer than d̂ at rest), so the barrier is zero.
     let mut y = vec![0.0; 3 * c.vertex_count()];
     let x: Vec<f64> = model()
         .mesh

@@ -14,9 +14,13 @@
 //! rigid with a bone (teeth, the deep mouth), an obstacle the bone pose moves.
 //!
 //! Pairs the simulation cannot influence are left out by groups (rigid–rigid: the teeth
-//! against each other are the jaw pose's business), and so are pairs already within d̂ at
-//! rest (neighbours along the finely tessellated surface, e.g. where the mouth socket turns
-//! from embedded to rigid): they are recorded at construction ([`FaceContact::rest_exclusions`]).
+//! against each other are the jaw pose's business). Pairs already within d̂ at rest
+//! (neighbours along the finely tessellated surface, e.g. where the mouth socket turns from
+//! embedded to rigid; on the sample 0.38–1 d̂ apart) get their own activation distance, half
+//! their rest distance ([`CLOSE_PAIR_ACTIVATION`], [`FaceContact::close_pairs`]): the barrier
+//! is zero at rest, and CCD tracks them like every other pair. Left out of contact
+//! altogether, as they were, a lip edge slid through the jaw-bound mouth lining it rests
+//! against (3 of ~1,000 random codes ended with crossings the after-solve check caught).
 //! The solver's after-solve crossing check ([`FaceContact::new_crossings_of_solve`]) skips
 //! pairs whose vertices are all embedded in one simulation element
 //! ([`ContactMesh::with_cells`]): they move by that element's affine map, which the solver
@@ -65,6 +69,9 @@ pub enum ContactBinding {
     /// With a bone, from its rest position.
     Rigid { bone: Bone, rest: Point3<f64> },
 }
+
+/// A pair within d̂ at rest is activated at this fraction of its rest distance.
+pub const CLOSE_PAIR_ACTIVATION: f64 = 0.5;
 
 /// Vertex groups: who may touch whom.
 const SOFT: u16 = 0;
@@ -222,31 +229,35 @@ impl FaceContact {
             .collect();
         let mesh = ContactMesh::with_groups(&rest, faces, group, &can_touch)?;
         let dhat = model.d_hat;
-        // Pairs within d̂ at rest are neighbours along the surface: left out.
+        // Pairs within d̂ at rest are neighbours along the surface: their barrier acts only
+        // once they have closed half their rest gap.
         let candidates = Candidates::build(&mesh, &rest, dhat)?;
-        let dhat2 = dhat * dhat;
-        let close_pt: Vec<(u32, u32)> = candidates
+        let own = |kind: super::CollisionKind, ids: [u32; 4]| {
+            let d = kind
+                .distance_squared(&super::math::stencil(&rest, ids))
+                .sqrt();
+            (d < dhat).then_some(CLOSE_PAIR_ACTIVATION * d)
+        };
+        let close_pt: Vec<((u32, u32), f64)> = candidates
             .point_triangle
             .iter()
-            .filter(|c| {
+            .filter_map(|c| {
                 let f = mesh.faces()[c.face as usize];
-                let p = super::math::stencil(&rest, [c.vertex, f[0], f[1], f[2]]);
-                super::CollisionKind::PointTriangle.distance_squared(&p) < dhat2
+                let ids = [c.vertex, f[0], f[1], f[2]];
+                own(super::CollisionKind::PointTriangle, ids).map(|a| ((c.vertex, c.face), a))
             })
-            .map(|c| (c.vertex, c.face))
             .collect();
-        let close_ee: Vec<(u32, u32)> = candidates
+        let close_ee: Vec<((u32, u32), f64)> = candidates
             .edge_edge
             .iter()
-            .filter(|c| {
+            .filter_map(|c| {
                 let [a0, a1] = mesh.edges()[c.edge_a as usize];
                 let [b0, b1] = mesh.edges()[c.edge_b as usize];
-                let p = super::math::stencil(&rest, [a0, a1, b0, b1]);
-                super::CollisionKind::EdgeEdge.distance_squared(&p) < dhat2
+                own(super::CollisionKind::EdgeEdge, [a0, a1, b0, b1])
+                    .map(|a| ((c.edge_a, c.edge_b), a))
             })
-            .map(|c| (c.edge_a, c.edge_b))
             .collect();
-        let mesh = mesh.with_exclusions(close_pt, close_ee);
+        let mesh = mesh.with_close_pairs(close_pt, close_ee);
         let cells = render_vertices
             .iter()
             .map(|&r| match render.bindings[r as usize] {
@@ -336,9 +347,10 @@ impl FaceContact {
         self.piece_counts
     }
 
-    /// Pairs left out because they are within d̂ at rest: (point–triangle, edge–edge).
-    pub fn rest_exclusions(&self) -> (usize, usize) {
-        self.mesh.exclusion_counts()
+    /// Pairs within d̂ at rest, with their own activation distance: (point–triangle,
+    /// edge–edge).
+    pub fn close_pairs(&self) -> (usize, usize) {
+        self.mesh.close_pair_counts()
     }
 
     /// Edge–triangle crossings present at rest (left out of [`FaceContact::new_crossings`]).

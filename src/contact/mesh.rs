@@ -23,10 +23,12 @@ pub struct ContactMesh {
     /// `can_touch[g·groups + h]`.
     can_touch: Vec<bool>,
     groups: usize,
-    /// Point–triangle pairs `(vertex, face)` left out of contact, sorted.
-    excluded_point_triangle: Vec<(u32, u32)>,
-    /// Edge–edge pairs `(edge a, edge b)`, `a < b`, left out of contact, sorted.
-    excluded_edge_edge: Vec<(u32, u32)>,
+    /// Point–triangle pairs `(vertex, face)` with their own activation distance (cm),
+    /// sorted by pair (see [`ContactMesh::with_close_pairs`]).
+    close_point_triangle: Vec<((u32, u32), f64)>,
+    /// Edge–edge pairs `(edge a, edge b)`, `a < b`, with their own activation distance,
+    /// sorted by pair.
+    close_edge_edge: Vec<((u32, u32), f64)>,
     /// The cell (e.g. simulation element) every vertex moves with affinely, [`NO_CELL`]
     /// for none; empty when no cells are given (see [`ContactMesh::with_cells`]).
     cell: Vec<u32>,
@@ -34,6 +36,13 @@ pub struct ContactMesh {
 
 /// A vertex that moves with no cell.
 pub const NO_CELL: u32 = u32::MAX;
+
+fn own_activation(pairs: &[((u32, u32), f64)], pair: (u32, u32)) -> Option<f64> {
+    pairs
+        .binary_search_by_key(&pair, |p| p.0)
+        .ok()
+        .map(|i| pairs[i].1)
+}
 
 impl ContactMesh {
     /// A contact surface in which every pair of primitives that shares no vertex may touch
@@ -129,31 +138,33 @@ impl ContactMesh {
             group,
             can_touch: can_touch.iter().flatten().copied().collect(),
             groups,
-            excluded_point_triangle: Vec::new(),
+            close_point_triangle: Vec::new(),
             cell: Vec::new(),
-            excluded_edge_edge: Vec::new(),
+            close_edge_edge: Vec::new(),
         })
     }
 
-    /// The same surface with individual pairs left out of contact (e.g. pairs that are
-    /// already within d̂ at rest because they are neighbours along the surface). Indices are
-    /// `(vertex, face)` and `(edge a, edge b)` into [`ContactMesh::faces`] and
-    /// [`ContactMesh::edges`]; edge pairs are stored with `a < b`.
-    pub fn with_exclusions(
+    /// The same surface with pairs that are already close at rest (e.g. neighbours along a
+    /// finely tessellated surface, within d̂ of each other) given their own activation
+    /// distance (cm), below their rest distance: the barrier leaves them alone at rest and
+    /// near it, and keeps them from closing the rest of the way (CCD tracks them as every
+    /// other pair). Indices are `(vertex, face)` and `(edge a, edge b)` into
+    /// [`ContactMesh::faces`] and [`ContactMesh::edges`]; edge pairs are stored with `a < b`.
+    pub fn with_close_pairs(
         mut self,
-        mut point_triangle: Vec<(u32, u32)>,
-        edge_edge: Vec<(u32, u32)>,
+        mut point_triangle: Vec<((u32, u32), f64)>,
+        edge_edge: Vec<((u32, u32), f64)>,
     ) -> Self {
-        point_triangle.sort_unstable();
-        point_triangle.dedup();
-        let mut edge_edge: Vec<(u32, u32)> = edge_edge
+        point_triangle.sort_unstable_by_key(|p| p.0);
+        point_triangle.dedup_by_key(|p| p.0);
+        let mut edge_edge: Vec<((u32, u32), f64)> = edge_edge
             .into_iter()
-            .map(|(a, b)| (a.min(b), a.max(b)))
+            .map(|((a, b), d)| ((a.min(b), a.max(b)), d))
             .collect();
-        edge_edge.sort_unstable();
-        edge_edge.dedup();
-        self.excluded_point_triangle = point_triangle;
-        self.excluded_edge_edge = edge_edge;
+        edge_edge.sort_unstable_by_key(|p| p.0);
+        edge_edge.dedup_by_key(|p| p.0);
+        self.close_point_triangle = point_triangle;
+        self.close_edge_edge = edge_edge;
         self
     }
 
@@ -162,7 +173,7 @@ impl ContactMesh {
     /// element, which the solver keeps at positive volume), so primitives whose vertices all
     /// lie in one cell cannot cross each other and the solver's crossing check skips them. Contact
     /// still tracks them: left out of the barrier and CCD, the surface folded inside
-    /// elements until pairs contact does not track crossed (5 of 996 random codes).
+    /// elements until pairs then untracked (those close at rest) crossed (5 of 996 random codes).
     /// [`NO_CELL`] for vertices that move otherwise.
     pub fn with_cells(mut self, cell: Vec<u32>) -> Result<Self, ContactError> {
         if cell.len() != self.vertex_count {
@@ -186,29 +197,23 @@ impl ContactMesh {
         c != NO_CELL && ids[1..].iter().all(|&v| self.cell[v as usize] == c)
     }
 
-    /// Whether the point–triangle pair `(vertex, face)` was left out.
+    /// The point–triangle pair's own activation distance (cm), if it is a close pair
+    /// ([`ContactMesh::with_close_pairs`]).
     #[inline]
-    pub fn excludes_point_triangle(&self, vertex: u32, face: u32) -> bool {
-        !self.excluded_point_triangle.is_empty()
-            && self
-                .excluded_point_triangle
-                .binary_search(&(vertex, face))
-                .is_ok()
+    pub fn point_triangle_activation(&self, vertex: u32, face: u32) -> Option<f64> {
+        own_activation(&self.close_point_triangle, (vertex, face))
     }
 
-    /// Whether the edge–edge pair `(a, b)`, `a < b`, was left out.
+    /// The edge–edge pair's `(a, b)`, `a < b`, own activation distance (cm), if it is a close
+    /// pair.
     #[inline]
-    pub fn excludes_edge_edge(&self, a: u32, b: u32) -> bool {
-        !self.excluded_edge_edge.is_empty()
-            && self.excluded_edge_edge.binary_search(&(a, b)).is_ok()
+    pub fn edge_edge_activation(&self, a: u32, b: u32) -> Option<f64> {
+        own_activation(&self.close_edge_edge, (a, b))
     }
 
-    /// Number of pairs left out (point–triangle, edge–edge).
-    pub fn exclusion_counts(&self) -> (usize, usize) {
-        (
-            self.excluded_point_triangle.len(),
-            self.excluded_edge_edge.len(),
-        )
+    /// Number of close pairs with their own activation distance (point–triangle, edge–edge).
+    pub fn close_pair_counts(&self) -> (usize, usize) {
+        (self.close_point_triangle.len(), self.close_edge_edge.len())
     }
 
     /// Number of simulation vertices (positions have `3·vertex_count` values).

@@ -71,6 +71,29 @@ impl Candidates {
         self.len() == 0
     }
 
+    /// The pairs split into the mesh's close pairs (with their own activation distance,
+    /// [`ContactMesh::with_close_pairs`]) and the others, each in order: (close, others).
+    pub fn split_close(&self, mesh: &ContactMesh) -> (Self, Self) {
+        let (close_pt, pt) = self
+            .point_triangle
+            .iter()
+            .partition(|c| mesh.point_triangle_activation(c.vertex, c.face).is_some());
+        let (close_ee, ee) = self
+            .edge_edge
+            .iter()
+            .partition(|c| mesh.edge_edge_activation(c.edge_a, c.edge_b).is_some());
+        (
+            Self {
+                point_triangle: close_pt,
+                edge_edge: close_ee,
+            },
+            Self {
+                point_triangle: pt,
+                edge_edge: ee,
+            },
+        )
+    }
+
     fn from_boxes(mesh: &ContactMesh, x: &[f64], box_of: impl Fn(&[u32]) -> Box3 + Sync) -> Self {
         // Fixed primitives built from the same boxes: nothing extra to grow by.
         let fixed = FixedTrees::new(mesh, &box_of);
@@ -141,9 +164,7 @@ impl Candidates {
         // against open faces.
         let keep_pt = |v: u32, f: u32| {
             let tri = faces[f as usize];
-            !tri.contains(&v)
-                && tri.iter().all(|&t| mesh.can_touch(v, t))
-                && !mesh.excludes_point_triangle(v, f)
+            !tri.contains(&v) && tri.iter().all(|&t| mesh.can_touch(v, t))
         };
         let push_pt = |v: u32, f: u32, out: &mut Vec<PointTriangleCandidate>| {
             if keep_pt(v, f) {
@@ -184,7 +205,6 @@ impl Candidates {
                 && [a0, a1]
                     .iter()
                     .all(|&p| mesh.can_touch(p, b0) && mesh.can_touch(p, b1))
-                && !mesh.excludes_edge_edge(ea.min(eb), ea.max(eb))
         };
         let push_ee = |ea: u32, eb: u32, out: &mut Vec<EdgeEdgeCandidate>| {
             if keep_ee(ea, eb) {

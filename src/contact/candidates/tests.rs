@@ -1,8 +1,9 @@
 //! Candidates against brute force: nothing within the inflation distance is ever missed.
 
 use super::*;
+use crate::contact::collisions::{Collision, CollisionKind, Collisions};
 use crate::contact::distance::{edge_edge_distance, point_triangle_distance};
-use crate::contact::math::vertex;
+use crate::contact::math::{stencil, vertex};
 use crate::contact::test_scenes::{two_sheet_mesh, two_sheets};
 
 fn brute_force(
@@ -185,9 +186,9 @@ fn striped_sheets() -> (Vec<f64>, ContactMesh, Vec<u16>) {
 
 /// Soft tissue that touches everything and rigid pieces that touch only soft tissue (the
 /// face's groups) take the broad phase's two-tree path: it must still find every allowed
-/// close pair, and honour per-pair exclusions.
+/// close pair; pairs close at rest stay candidates with their own activation distance.
 #[test]
-fn split_groups_and_exclusions_miss_no_allowed_pair() {
+fn split_groups_miss_no_allowed_pair_and_close_pairs_activate_late() {
     let (x, mesh, _) = striped_sheets();
     assert!(mesh.groups_split_by_universal());
     let dhat = 0.05;
@@ -217,14 +218,44 @@ fn split_groups_and_exclusions_miss_no_allowed_pair() {
     for e in &allowed_ee {
         assert!(c.edge_edge.binary_search(e).is_ok(), "missed {e:?}");
     }
-    // Excluding the first allowed pair of each kind removes exactly those.
+    // A close pair of each kind (own activation distance, half its distance here) stays a
+    // candidate, so CCD tracks it; `split_close` sets exactly those apart, and the active set
+    // takes each only below its own activation distance.
     let (p0, e0) = (allowed_pt[0], allowed_ee[0]);
-    let excluded = mesh.with_exclusions(vec![(p0.vertex, p0.face)], vec![(e0.edge_b, e0.edge_a)]);
-    let c2 = Candidates::build(&excluded, &x, dhat).unwrap();
-    assert_eq!(c2.point_triangle.len() + 1, c.point_triangle.len());
-    assert_eq!(c2.edge_edge.len() + 1, c.edge_edge.len());
-    assert!(c2.point_triangle.binary_search(&p0).is_err());
-    assert!(c2.edge_edge.binary_search(&e0).is_err());
+    let f0 = mesh.faces()[p0.face as usize];
+    let ([a0, a1], [b0, b1]) = (
+        mesh.edges()[e0.edge_a as usize],
+        mesh.edges()[e0.edge_b as usize],
+    );
+    let d_pt = CollisionKind::PointTriangle
+        .distance_squared(&stencil(&x, [p0.vertex, f0[0], f0[1], f0[2]]))
+        .sqrt();
+    let d_ee = CollisionKind::EdgeEdge
+        .distance_squared(&stencil(&x, [a0, a1, b0, b1]))
+        .sqrt();
+    let with_close = |scale: f64| {
+        mesh.clone().with_close_pairs(
+            vec![((p0.vertex, p0.face), scale * d_pt)],
+            vec![((e0.edge_b, e0.edge_a), scale * d_ee)],
+        )
+    };
+    let close = with_close(0.5);
+    let c2 = Candidates::build(&close, &x, dhat).unwrap();
+    assert_eq!(c2, c, "close pairs stay candidates");
+    let (near, others) = c2.split_close(&close);
+    assert_eq!(near.point_triangle, vec![p0]);
+    assert_eq!(near.edge_edge, vec![e0]);
+    assert_eq!(others.len() + 2, c.len());
+    let is_p0 = |k: &Collision| k.vertices == [p0.vertex, f0[0], f0[1], f0[2]];
+    let is_e0 = |k: &Collision| k.vertices == [a0, a1, b0, b1];
+    let plain = Collisions::from_candidates(&mesh, &c, &x, dhat).unwrap();
+    assert!(plain.collisions.iter().any(is_p0) && plain.collisions.iter().any(is_e0));
+    let inactive = Collisions::from_candidates(&close, &c, &x, dhat).unwrap();
+    assert!(!inactive.collisions.iter().any(|k| is_p0(k) || is_e0(k)));
+    assert_eq!(inactive.len() + 2, plain.len());
+    let active = Collisions::from_candidates(&with_close(2.0), &c, &x, dhat).unwrap();
+    let own = active.collisions.iter().find(|k| is_p0(k)).unwrap();
+    assert!((own.activation2 - 4.0 * d_pt * d_pt).abs() < 1e-15);
 }
 
 /// With the rigid stripes' trees built once ([`FixedPrimitives`]), static and swept

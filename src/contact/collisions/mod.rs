@@ -55,8 +55,11 @@ pub struct Collision {
     pub vertices: [u32; 4],
     /// Closest-feature type at the positions the set was built from.
     pub dtype: CollisionType,
-    /// Squared distance at those positions (cm²), `0 < d² < d̂²`.
+    /// Squared distance at those positions (cm²), `0 < d² < activation²`.
     pub distance_squared: f64,
+    /// The squared distance (cm²) below which the barrier acts on this pair: d̂², or less for
+    /// a pair already close at rest ([`ContactMesh::with_close_pairs`]).
+    pub activation2: f64,
     /// Edge–edge mollifier threshold `ε_x` (cm⁴); 0 for point–triangle pairs.
     pub eps_x: f64,
 }
@@ -90,8 +93,9 @@ impl Collisions {
         Self::from_candidates(mesh, &candidates, x, dhat)
     }
 
-    /// The candidates with `0 < d² < d̂²` at `x`. A pair at distance 0 (touching or
-    /// intersecting surfaces) is an error: the barrier is infinite there.
+    /// The candidates with `0 < d² < d̂²` at `x` (below their own activation distance for
+    /// the mesh's close pairs). A pair at distance 0 (touching or intersecting surfaces) is
+    /// an error: the barrier is infinite there.
     pub fn from_candidates(
         mesh: &ContactMesh,
         candidates: &Candidates,
@@ -100,7 +104,7 @@ impl Collisions {
     ) -> Result<Self, ContactError> {
         check_dhat(dhat)?;
         mesh.check_positions(x)?;
-        let dhat2 = dhat * dhat;
+        let activation2 = |own: Option<f64>| own.map_or(dhat * dhat, |a| a * a);
         let faces = mesh.faces();
         let edges = mesh.edges();
         let pt = candidates.point_triangle.par_iter().map(|c| {
@@ -109,11 +113,13 @@ impl Collisions {
             let p = stencil(x, vertices);
             let t = point_triangle_distance_type(&p[0], &p[1], &p[2], &p[3]);
             let d = point_triangle_distance_typed(&p[0], &p[1], &p[2], &p[3], t);
-            (d < dhat2).then_some(Collision {
+            let activation2 = activation2(mesh.point_triangle_activation(c.vertex, c.face));
+            (d < activation2).then_some(Collision {
                 kind: CollisionKind::PointTriangle,
                 vertices,
                 dtype: CollisionType::PointTriangle(t),
                 distance_squared: d,
+                activation2,
                 eps_x: 0.0,
             })
         });
@@ -124,11 +130,13 @@ impl Collisions {
             let p = stencil(x, vertices);
             let t = edge_edge_distance_type(&p[0], &p[1], &p[2], &p[3]);
             let d = edge_edge_distance_typed(&p[0], &p[1], &p[2], &p[3], t);
-            (d < dhat2).then_some(Collision {
+            let activation2 = activation2(mesh.edge_edge_activation(c.edge_a, c.edge_b));
+            (d < activation2).then_some(Collision {
                 kind: CollisionKind::EdgeEdge,
                 vertices,
                 dtype: CollisionType::EdgeEdge(t),
                 distance_squared: d,
+                activation2,
                 eps_x: mesh.mollifier_threshold(c.edge_a as usize, c.edge_b as usize),
             })
         });

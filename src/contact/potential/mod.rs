@@ -149,14 +149,14 @@ impl BarrierPotential {
         Ok(())
     }
 
-    /// `B(x) = κ·Σ m·b(d², d̂²)`; `+∞` if a pair touches (`d = 0`).
+    /// `B(x) = κ·Σ m·b(d², d̂ₚ²)` (`d̂ₚ` each pair's activation distance, d̂ but for close
+    /// pairs); `+∞` if a pair touches (`d = 0`).
     pub fn value(&self, collisions: &Collisions, x: &[f64]) -> Result<f64, ContactError> {
         self.check(collisions, x)?;
-        let dhat2 = self.dhat * self.dhat;
         let terms: Vec<f64> = collisions
             .collisions
             .par_iter()
-            .map(|c| local::value(c, &stencil(x, c.vertices), dhat2))
+            .map(|c| local::value(c, &stencil(x, c.vertices), c.activation2))
             .collect();
         Ok(self.stiffness * terms.iter().sum::<f64>())
     }
@@ -176,11 +176,10 @@ impl BarrierPotential {
                 got: out.len(),
             });
         }
-        let dhat2 = self.dhat * self.dhat;
         let locals: Vec<_> = collisions
             .collisions
             .par_iter()
-            .map(|c| local::gradient(c, &stencil(x, c.vertices), dhat2))
+            .map(|c| local::gradient(c, &stencil(x, c.vertices), c.activation2))
             .collect();
         for (c, g) in collisions.collisions.iter().zip(&locals) {
             for (i, &v) in c.vertices.iter().enumerate() {
@@ -209,13 +208,12 @@ impl BarrierPotential {
     ) -> Result<Vec<HessianBlock>, ContactError> {
         self.check(collisions, x)?;
         self.touching(collisions, x)?;
-        let dhat2 = self.dhat * self.dhat;
         let kappa = self.stiffness;
         Ok(collisions
             .collisions
             .par_iter()
             .map(|c: &Collision| {
-                let h = kappa * local::hessian(c, &stencil(x, c.vertices), dhat2);
+                let h = kappa * local::hessian(c, &stencil(x, c.vertices), c.activation2);
                 let matrix = match projection {
                     Projection::None => h,
                     Projection::ClampEigenvalues => psd::project_to_psd(&h),
