@@ -543,6 +543,36 @@ mod tests {
         );
     }
 
+    /// Solves the first `count` codes of the seeded random sweep (as `bench contact --sweep
+    /// count --sweep-seed seed` does: interactive preset, warm-started from rest) on the
+    /// sample; every frame must solve, reach its pose and be crossing- and fold-free. `each`
+    /// then sees the frame, the simulator, the frame's actuation, its stats and the state.
+    fn solve_sweep(
+        count: usize,
+        seed: u64,
+        mut each: impl FnMut(
+            usize,
+            &Simulator,
+            &crate::drive::Actuation,
+            &crate::sim::SolveStats,
+            &crate::sim::SimState,
+        ),
+    ) {
+        let (sim, actuation) = sample_sim();
+        let settings = Quality::Interactive.settings();
+        let mut state = sim.rest_state();
+        for (frame, code) in random_codes(count, seed).iter().enumerate() {
+            let a = actuation.actuate(code).unwrap();
+            let bones = a.bones();
+            let stats = sim
+                .solve(&a.tensors, &bones, &mut state, &settings)
+                .unwrap_or_else(|e| panic!("frame {frame}: {e}"));
+            assert_eq!(state.bones, bones);
+            assert_crossing_and_fold_free(&sim, &state, frame);
+            each(frame, &sim, &a, &stats, &state);
+        }
+    }
+
     /// Clusters merge through shared vertices and keep the bone they were joined with (none
     /// when joined with both); a cluster with no bone gets the rigid motion its carried
     /// displacements make, exactly when they are one.
@@ -669,26 +699,16 @@ mod tests {
     /// fold-free, frame 10 in few stages.
     #[test]
     fn seed_7_sweep_solves_its_large_jaw_swing() {
-        let (sim, actuation) = sample_sim();
-        let settings = Quality::Interactive.settings();
-        let mut state = sim.rest_state();
-        for (frame, code) in random_codes(11, 7).iter().enumerate() {
-            let a = actuation.actuate(code).unwrap();
-            let bones = a.bones();
-            let stats = sim
-                .solve(&a.tensors, &bones, &mut state, &settings)
-                .unwrap_or_else(|e| panic!("frame {frame}: {e}"));
+        solve_sweep(11, 7, |frame, _, _, stats, _| {
             let c = stats.contact.as_ref().map_or(0, |c| c.pose_stages);
             eprintln!(
                 "frame {frame}: {c} stages, {:.1} s",
                 stats.wall_time.as_secs_f64()
             );
-            assert_eq!(state.bones, bones);
-            assert_crossing_and_fold_free(&sim, &state, frame);
             if frame == 10 {
                 assert!(c <= 16, "frame 10: {c} stages");
             }
-        }
+        });
     }
 
     /// Seed 162's second code (`facesim bench contact --sweep 16 --sweep-seed 162`) pressed a
@@ -698,17 +718,10 @@ mod tests {
     /// solve crossing-free.
     #[test]
     fn seed_162_keeps_the_lip_off_the_lining_it_rests_against() {
-        let (sim, actuation) = sample_sim();
-        let (pt, ee) = sim.contact.as_ref().unwrap().face.close_pairs();
-        assert!(pt > 0 && ee > 0, "the sample has close pairs");
-        let settings = Quality::Interactive.settings();
-        let mut state = sim.rest_state();
-        for (frame, code) in random_codes(2, 162).iter().enumerate() {
-            let a = actuation.actuate(code).unwrap();
-            sim.solve(&a.tensors, &a.bones(), &mut state, &settings)
-                .unwrap_or_else(|e| panic!("frame {frame}: {e}"));
-            assert_crossing_and_fold_free(&sim, &state, frame);
-        }
+        solve_sweep(2, 162, |_, sim, _, _, _| {
+            let (pt, ee) = sim.contact.as_ref().unwrap().face.close_pairs();
+            assert!(pt > 0 && ee > 0, "the sample has close pairs");
+        });
     }
 
     /// The first two codes of the random sweep (`bench contact --sweep`, seed 1) on the
@@ -719,15 +732,7 @@ mod tests {
     /// that translation, contact curvature and the teeth's push included.
     #[test]
     fn large_jaw_swings_solve_in_few_carried_stages() {
-        let (sim, actuation) = sample_sim();
-        let settings = Quality::Interactive.settings();
-        let mut state = sim.rest_state();
-        for (frame, code) in random_codes(2, 1).iter().enumerate() {
-            let a = actuation.actuate(code).unwrap();
-            let bones = a.bones();
-            let stats = sim
-                .solve(&a.tensors, &bones, &mut state, &settings)
-                .unwrap_or_else(|e| panic!("frame {frame}: {e}"));
+        solve_sweep(2, 1, |frame, sim, a, stats, state| {
             let c = stats.contact.as_ref().expect("contact ran");
             eprintln!(
                 "frame {frame}: {} stages ({} carried), {} iterations, {:.1} s",
@@ -745,11 +750,10 @@ mod tests {
                 c.carried_stages >= 1,
                 "frame {frame}: the tissue was never carried"
             );
-            assert_eq!(state.bones, bones);
-            assert_crossing_and_fold_free(&sim, &state, frame);
 
             if frame == 0 {
                 let model = sim.contact.as_ref().unwrap();
+                let bones = a.bones();
                 // Contact is active here (lips pressed, teeth close): translate the head.
                 assert!(c.active_pairs > 0);
                 let shift = Vector3::new(0.3, -0.2, 0.1);
@@ -772,6 +776,6 @@ mod tests {
                     .fold(0.0, f64::max);
                 assert!(worst < 1e-6 * shift.norm(), "worst deviation {worst:e} cm");
             }
-        }
+        });
     }
 }
