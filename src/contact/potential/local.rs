@@ -1,7 +1,8 @@
 //! One collision's barrier term and its derivatives on its 12-dof stencil.
 //!
 //! Point–triangle: `B = κ·b(d(x), d̂²)`. Edge–edge: `B = κ·m(c(x))·b(d(x), d̂²)` with the
-//! mollifier `m` of [`crate::contact::distance::mollifier`] (`m = 1` once `c ≥ ε_x`).
+//! mollifier `m` of [`crate::contact::distance::mollifier`] (`m = 1` once `c ≥ ε_x`); `d̂²` is
+//! the collision's own `activation2` (d̂² but for pairs close at rest).
 //! Derivatives by the chain and product rules:
 //! - `∇B = κ·(m·b'·∇d + b·∇m)`,
 //! - `∇²B = κ·(m·(b''·∇d∇dᵀ + b'·∇²d) + b'·(∇m∇dᵀ + ∇d∇mᵀ) + b·∇²m)`.
@@ -56,7 +57,8 @@ fn mollified(c: &Collision, p: &[Vec3; 4]) -> Option<f64> {
 }
 
 /// `m·b(d, d̂²)` (unit stiffness), `+∞` at `d ≤ 0`.
-pub fn value(c: &Collision, p: &[Vec3; 4], dhat2: f64) -> f64 {
+pub fn value(c: &Collision, p: &[Vec3; 4]) -> f64 {
+    let dhat2 = c.activation2;
     let b = barrier(c.kind.distance_squared(p), dhat2);
     match mollified(c, p) {
         Some(cross) if b != 0.0 => mollifier(cross, c.eps_x) * b,
@@ -65,7 +67,8 @@ pub fn value(c: &Collision, p: &[Vec3; 4], dhat2: f64) -> f64 {
 }
 
 /// `∇(m·b)` (unit stiffness).
-pub fn gradient(c: &Collision, p: &[Vec3; 4], dhat2: f64) -> Vector12 {
+pub fn gradient(c: &Collision, p: &[Vec3; 4]) -> Vector12 {
+    let dhat2 = c.activation2;
     let (d, gd) = distance_gradient(c.kind, p);
     let b1 = barrier_first_derivative(d, dhat2);
     match mollified(c, p) {
@@ -80,12 +83,13 @@ pub fn gradient(c: &Collision, p: &[Vec3; 4], dhat2: f64) -> Vector12 {
 }
 
 /// `∇²(m·b)` (unit stiffness), dense 12×12 and exactly symmetric.
-pub fn hessian(c: &Collision, p: &[Vec3; 4], dhat2: f64) -> Matrix12 {
-    let h = hessian_unsymmetrized(c, p, dhat2);
+pub fn hessian(c: &Collision, p: &[Vec3; 4]) -> Matrix12 {
+    let h = hessian_unsymmetrized(c, p);
     0.5 * (h + h.transpose())
 }
 
-fn hessian_unsymmetrized(c: &Collision, p: &[Vec3; 4], dhat2: f64) -> Matrix12 {
+fn hessian_unsymmetrized(c: &Collision, p: &[Vec3; 4]) -> Matrix12 {
+    let dhat2 = c.activation2;
     let (d, gd, hd) = distance_derivatives(c.kind, p);
     let b1 = barrier_first_derivative(d, dhat2);
     let b2 = barrier_second_derivative(d, dhat2);

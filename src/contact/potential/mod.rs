@@ -156,7 +156,7 @@ impl BarrierPotential {
         let terms: Vec<f64> = collisions
             .collisions
             .par_iter()
-            .map(|c| local::value(c, &stencil(x, c.vertices), c.activation2))
+            .map(|c| local::value(c, &stencil(x, c.vertices)))
             .collect();
         Ok(self.stiffness * terms.iter().sum::<f64>())
     }
@@ -179,7 +179,7 @@ impl BarrierPotential {
         let locals: Vec<_> = collisions
             .collisions
             .par_iter()
-            .map(|c| local::gradient(c, &stencil(x, c.vertices), c.activation2))
+            .map(|c| local::gradient(c, &stencil(x, c.vertices)))
             .collect();
         for (c, g) in collisions.collisions.iter().zip(&locals) {
             for (i, &v) in c.vertices.iter().enumerate() {
@@ -213,7 +213,7 @@ impl BarrierPotential {
             .collisions
             .par_iter()
             .map(|c: &Collision| {
-                let h = kappa * local::hessian(c, &stencil(x, c.vertices), c.activation2);
+                let h = kappa * local::hessian(c, &stencil(x, c.vertices));
                 let matrix = match projection {
                     Projection::None => h,
                     Projection::ClampEigenvalues => psd::project_to_psd(&h),
