@@ -194,9 +194,8 @@ impl VerletList {
             Candidates::build_moved(mesh, fixed, &self.y0, &start, &end, dhat, self.reach)?;
         let faces = mesh.faces();
         let edges = mesh.edges();
-        let close = |ids: Stencil| {
-            let d0 = ids.distance(&self.y0);
-            d0 - relative_motion(&ids, &start).max(relative_motion(&ids, &end)) < dhat
+        let closest = |ids: Stencil| {
+            ids.distance(&self.y0) - relative_motion(&ids, &start).max(relative_motion(&ids, &end))
         };
         let point_triangle: Vec<_> = beyond
             .point_triangle
@@ -204,7 +203,11 @@ impl VerletList {
             .filter(|c| {
                 let f = faces[c.face as usize];
                 self.candidates.point_triangle.binary_search(c).is_err()
-                    && close(Stencil::PointTriangle([c.vertex, f[0], f[1], f[2]]))
+                    && activates(
+                        closest(Stencil::PointTriangle([c.vertex, f[0], f[1], f[2]])),
+                        dhat,
+                        || mesh.point_triangle_activation(c.vertex, c.face),
+                    )
             })
             .collect();
         let edge_edge: Vec<_> = beyond
@@ -214,7 +217,9 @@ impl VerletList {
                 let [a0, a1] = edges[c.edge_a as usize];
                 let [b0, b1] = edges[c.edge_b as usize];
                 self.candidates.edge_edge.binary_search(c).is_err()
-                    && close(Stencil::EdgeEdge([a0, a1, b0, b1]))
+                    && activates(closest(Stencil::EdgeEdge([a0, a1, b0, b1])), dhat, || {
+                        mesh.edge_edge_activation(c.edge_a, c.edge_b)
+                    })
             })
             .collect();
         let extra = point_triangle.len() + edge_edge.len();
@@ -246,8 +251,8 @@ impl VerletList {
     fn listed_near(&self, mesh: &ContactMesh, start: &[f64], end: &[f64], dhat: f64) -> Candidates {
         let faces = mesh.faces();
         let edges = mesh.edges();
-        let close = |ids: Stencil, d0: f64| {
-            d0 - relative_motion(&ids, start).max(relative_motion(&ids, end)) < dhat
+        let closest = |ids: Stencil, d0: f64| {
+            d0 - relative_motion(&ids, start).max(relative_motion(&ids, end))
         };
         let point_triangle = self
             .candidates
@@ -256,7 +261,11 @@ impl VerletList {
             .zip(&self.pt_distance)
             .filter(|(c, d0)| {
                 let f = faces[c.face as usize];
-                close(Stencil::PointTriangle([c.vertex, f[0], f[1], f[2]]), **d0)
+                activates(
+                    closest(Stencil::PointTriangle([c.vertex, f[0], f[1], f[2]]), **d0),
+                    dhat,
+                    || mesh.point_triangle_activation(c.vertex, c.face),
+                )
             })
             .map(|(c, _)| *c)
             .collect();
@@ -268,7 +277,11 @@ impl VerletList {
             .filter(|(c, d0)| {
                 let [a0, a1] = edges[c.edge_a as usize];
                 let [b0, b1] = edges[c.edge_b as usize];
-                close(Stencil::EdgeEdge([a0, a1, b0, b1]), **d0)
+                activates(
+                    closest(Stencil::EdgeEdge([a0, a1, b0, b1]), **d0),
+                    dhat,
+                    || mesh.edge_edge_activation(c.edge_a, c.edge_b),
+                )
             })
             .map(|(c, _)| *c)
             .collect();
@@ -277,6 +290,16 @@ impl VerletList {
             edge_edge,
         }
     }
+}
+
+/// Whether a pair whose distance stays at least `closest` during the step can reach its
+/// activation distance: `dhat`, or its own (smaller) one for a pair close at rest, looked
+/// up only for the few pairs that pass the first test. (A pair that cannot reach its
+/// activation distance can neither touch nor enter the barrier, so CCD and the barrier
+/// both skip it: close pairs would otherwise pass every step, being within d̂ from the
+/// start.)
+fn activates(closest: f64, dhat: f64, own: impl Fn() -> Option<f64>) -> bool {
+    closest < dhat && own().is_none_or(|a| closest < a)
 }
 
 /// Whether both ends of every vertex's move `y → y + dy` are within `distance` of `y0`.

@@ -209,3 +209,87 @@ fn swept_list_is_the_swept_candidates_that_pass_the_bound() {
     assert_eq!(list.candidates.point_triangle, point_triangle);
     assert_eq!(list.candidates.edge_edge, edge_edge);
 }
+
+/// Pairs close at rest (own activation distance, here half their distance) are near only
+/// when the step can bring them within that distance: every pair that comes within its
+/// activation distance along the step is near (from the list and from beyond it), and the
+/// close pairs the step cannot bring that close are left out.
+#[test]
+fn close_pairs_are_near_only_when_they_can_reach_their_own_activation() {
+    let (y, faces) = two_sheets(8, 0.02, [0.011, -0.017], 0.2, 0.004, 3);
+    let plain = two_sheet_mesh(&y, &faces);
+    let (dhat, slack) = (0.03, 0.05);
+    let (mut pt, mut ee) = (Vec::new(), Vec::new());
+    for (is_pt, a, b) in close_pairs(&plain, &y, dhat) {
+        let ids = if is_pt {
+            let f = plain.faces()[b as usize];
+            Stencil::PointTriangle([a, f[0], f[1], f[2]])
+        } else {
+            let ([a0, a1], [b0, b1]) = (plain.edges()[a as usize], plain.edges()[b as usize]);
+            Stencil::EdgeEdge([a0, a1, b0, b1])
+        };
+        let own = 0.5 * ids.distance(&y);
+        if is_pt {
+            pt.push(((a, b), own))
+        } else {
+            ee.push(((a, b), own))
+        }
+    }
+    assert!(
+        !pt.is_empty() && !ee.is_empty(),
+        "the scene has pairs within d̂"
+    );
+    let mesh = plain.clone().with_close_pairs(pt, ee);
+    let fixed = FixedPrimitives::new(&mesh, &y).unwrap();
+    let list = VerletList::build(&mesh, &fixed, &y, dhat, slack).unwrap();
+    let activation = |p: &(bool, u32, u32)| {
+        match *p {
+            (true, v, f) => mesh.point_triangle_activation(v, f),
+            (false, a, b) => mesh.edge_edge_activation(a, b),
+        }
+        .unwrap_or(dhat)
+    };
+    let mut rng = ChaCha8Rng::seed_from_u64(11);
+    let (mut left_out, mut checked) = (0, 0);
+    for (trial, scale) in [0.002, 0.002, 0.02, 0.1].into_iter().enumerate() {
+        let mut at = y.clone();
+        let mut dy = vec![0.0; y.len()];
+        for (p, d) in at.iter_mut().zip(dy.iter_mut()) {
+            *p += rng.random_range(-scale..scale);
+            *d = rng.random_range(-scale..scale);
+        }
+        let near = if list.covers(&at, &dy) {
+            list.near(&mesh, &at, &dy, dhat).unwrap()
+        } else {
+            list.near_beyond(&mesh, &fixed, &at, &dy, dhat).unwrap().0
+        };
+        let near_plain = VerletList::build(&plain, &fixed, &y, dhat, slack)
+            .unwrap()
+            .near_beyond(&plain, &fixed, &at, &dy, dhat)
+            .unwrap()
+            .0;
+        left_out += near_plain.len() - near.len();
+        for s in [0.0, 0.25, 0.5, 0.75, 1.0] {
+            let ys: Vec<f64> = at.iter().zip(&dy).map(|(p, d)| p + s * d).collect();
+            for p in close_pairs(&mesh, &ys, dhat) {
+                let (is_pt, a, b) = p;
+                let ids = if is_pt {
+                    let f = mesh.faces()[b as usize];
+                    Stencil::PointTriangle([a, f[0], f[1], f[2]])
+                } else {
+                    let ([a0, a1], [b0, b1]) = (mesh.edges()[a as usize], mesh.edges()[b as usize]);
+                    Stencil::EdgeEdge([a0, a1, b0, b1])
+                };
+                if ids.distance(&ys) < activation(&p) {
+                    assert!(contains(&near, &p), "trial {trial}, s = {s}: missed {p:?}");
+                    checked += 1;
+                }
+            }
+        }
+    }
+    assert!(
+        checked > 0,
+        "some pairs must come within their activation distance"
+    );
+    assert!(left_out > 0, "small steps must leave close pairs out");
+}
