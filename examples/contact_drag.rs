@@ -7,9 +7,7 @@
 //! (from the repository root; reads `sample_models/ict/neutral-coarse.face`).
 
 use anyhow::{Context, Result};
-use facesim::bench::contact::drag_pose;
-use facesim::contact::drive::{LipField, run_sequence};
-use facesim::contact::face::{FaceContact, FaceContactSettings};
+use facesim::bench::contact::{ContactScene, Sequence};
 use facesim::sim::{ContactGate, Quality, SolveSettings};
 
 const FRAMES: usize = 8;
@@ -20,21 +18,15 @@ fn main() -> Result<()> {
     let path = std::path::Path::new("sample_models/ict/neutral-coarse.face");
     let model = facesim::model::FaceModel::load(path)
         .with_context(|| format!("loading {} (run from the repository root)", path.display()))?;
-    let face = FaceContact::new(&model, &FaceContactSettings::default())?;
-    let field = LipField::new(&model, &face, 1.5);
-    let mut sim = model.simulator()?;
-    sim.set_contact(face)?;
-    sim.set_contact_gate(ContactGate::Always);
+    let mut scene = ContactScene::new(&model)?;
+    scene.sim.set_contact_gate(ContactGate::Always);
     let settings = SolveSettings {
         contact,
         ..Quality::Interactive.settings()
     };
     let mut all = Vec::new();
     for pass in 0..PASSES {
-        let outcomes = run_sequence(&sim, FRAMES, &settings, |k| {
-            let pose = drag_pose(k, FRAMES);
-            (field.actuations(&pose), pose.bones())
-        });
+        let outcomes = scene.run(Sequence::Drag, FRAMES, &settings);
         let mut ms = Vec::new();
         for o in &outcomes {
             let stats = o

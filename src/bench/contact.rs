@@ -15,10 +15,12 @@ use std::time::Duration;
 
 use serde::Serialize;
 
-use crate::contact::drive::{LipField, MouthPose, run_sequence};
+use crate::contact::drive::{FrameOutcome, LipField, MouthPose, run_sequence};
 use crate::contact::face::{FaceContact, FaceContactSettings};
 use crate::model::FaceModel;
-use crate::sim::{ContactGate, ContactStep, Quality, SimError, Simulator, SolveStats};
+use crate::sim::{
+    ContactGate, ContactStep, Quality, SimError, Simulator, SolveSettings, SolveStats,
+};
 
 /// The frame sequences the benchmark drives.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
@@ -115,28 +117,62 @@ fn ms(d: Duration) -> f64 {
     d.as_secs_f64() * 1e3
 }
 
+/// The face the benchmark drives: its simulator with contact set up (gate and step as the
+/// caller sets them) and the lip field the sequences' poses go through.
+pub struct ContactScene {
+    pub sim: Simulator,
+    field: LipField,
+}
+
+impl ContactScene {
+    pub fn new(model: &FaceModel) -> Result<Self, SimError> {
+        let face = FaceContact::new(model, &FaceContactSettings::default())?;
+        let field = LipField::new(model, &face, 1.5);
+        let mut sim = model.simulator()?;
+        sim.set_contact(face)?;
+        Ok(Self { sim, field })
+    }
+
+    /// Solves `frames` frames of `sequence` in order, each warm-started from the last.
+    pub fn run(
+        &self,
+        sequence: Sequence,
+        frames: usize,
+        settings: &SolveSettings,
+    ) -> Vec<FrameOutcome> {
+        run(&self.sim, &self.field, sequence, frames, settings)
+    }
+}
+
+fn run(
+    sim: &Simulator,
+    field: &LipField,
+    sequence: Sequence,
+    frames: usize,
+    settings: &SolveSettings,
+) -> Vec<FrameOutcome> {
+    run_sequence(sim, frames, settings, |k| {
+        let pose = sequence.pose(k, frames);
+        (field.actuations(&pose), pose.bones())
+    })
+}
+
 /// Runs both sequences of `frames` frames under every preset with contact off, on with the
 /// gate off and on with the gate on, and the drag at the interactive preset with the
 /// refactoring contact step (gate off).
 pub fn bench(model: &FaceModel, frames: usize) -> Result<Vec<ContactBenchRow>, SimError> {
-    let face = FaceContact::new(model, &FaceContactSettings::default())?;
-    let field = LipField::new(model, &face, 1.5);
-    let mut sim = model.simulator()?;
-    sim.set_contact(face)?;
+    let ContactScene { mut sim, field } = ContactScene::new(model)?;
     let mut rows = Vec::new();
-    let run = |sim: &Simulator,
+    let row = |sim: &Simulator,
                sequence: Sequence,
                quality: Quality,
                contact: bool,
                step: ContactStep| {
-        let settings = crate::sim::SolveSettings {
+        let settings = SolveSettings {
             contact,
             ..quality.settings()
         };
-        let outcomes = run_sequence(sim, frames, &settings, |k| {
-            let pose = sequence.pose(k, frames);
-            (field.actuations(&pose), pose.bones())
-        });
+        let outcomes = run(sim, &field, sequence, frames, &settings);
         let solved: Vec<&SolveStats> = outcomes
             .iter()
             .filter_map(|o| o.result.as_ref().ok())
@@ -185,7 +221,7 @@ pub fn bench(model: &FaceModel, frames: usize) -> Result<Vec<ContactBenchRow>, S
     };
     for sequence in [Sequence::Drag, Sequence::Subtle] {
         for quality in Quality::ALL {
-            rows.push(run(
+            rows.push(row(
                 &sim,
                 sequence,
                 quality,
@@ -194,7 +230,7 @@ pub fn bench(model: &FaceModel, frames: usize) -> Result<Vec<ContactBenchRow>, S
             ));
             for gate in [ContactGate::Always, ContactGate::WhenNeeded] {
                 sim.set_contact_gate(gate);
-                rows.push(run(
+                rows.push(row(
                     &sim,
                     sequence,
                     quality,
@@ -206,7 +242,7 @@ pub fn bench(model: &FaceModel, frames: usize) -> Result<Vec<ContactBenchRow>, S
     }
     sim.set_contact_gate(ContactGate::Always);
     sim.set_contact_step(ContactStep::Refactor);
-    rows.push(run(
+    rows.push(row(
         &sim,
         Sequence::Drag,
         Quality::Interactive,

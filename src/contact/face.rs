@@ -412,9 +412,6 @@ impl FaceContact {
     /// business) and pairs sharing a vertex are not checked.
     pub fn new_crossings(&self, y: &[f64]) -> Vec<(u32, u32)> {
         self.crossings(y, false)
-            .into_iter()
-            .filter(|p| self.rest_crossings.binary_search(p).is_err())
-            .collect()
     }
 
     /// [`FaceContact::new_crossings`] for positions `y` of a solver state, `y` =
@@ -424,12 +421,10 @@ impl FaceContact {
     /// targets or a displacement field, which may fold inside an element).
     pub fn new_crossings_of_solve(&self, y: &[f64]) -> Vec<(u32, u32)> {
         self.crossings(y, true)
-            .into_iter()
-            .filter(|p| self.rest_crossings.binary_search(p).is_err())
-            .collect()
     }
 
-    /// `skip_cells`: leave out pairs within one cell (see [`FaceContact::new_crossings_of_solve`]).
+    /// The new crossings at `y`; `skip_cells`: leave out pairs within one cell (see
+    /// [`FaceContact::new_crossings_of_solve`]).
     fn crossings(&self, y: &[f64], skip_cells: bool) -> Vec<(u32, u32)> {
         let faces = self.mesh.faces();
         let edges = self.mesh.edges();
@@ -452,7 +447,9 @@ impl FaceContact {
                 }
                 let (pa, pb) = (Point3::from(vertex(y, a)), Point3::from(vertex(y, b)));
                 let tp = t.map(|v| Point3::from(vertex(y, v)));
-                if segment_crosses_triangle(&pa, &pb, [&tp[0], &tp[1], &tp[2]], t) {
+                if segment_crosses_triangle(&pa, &pb, [&tp[0], &tp[1], &tp[2]], t)
+                    && self.rest_crossings.binary_search(&(e, f)).is_err()
+                {
                     out.push((e, f));
                 }
             });
