@@ -239,8 +239,9 @@ fn main() -> Result<()> {
                         .as_deref()
                         .map(|e| format!(": {e}"))
                         .unwrap_or_default();
+                    let rest = if r.from_rest { " (from rest)" } else { "" };
                     eprintln!(
-                        "frame {frame} ({on}): {:?} in {:.2} s{why}",
+                        "frame {frame} ({on}): {:?}{rest} in {:.2} s{why}",
                         r.outcome,
                         r.time.as_secs_f64()
                     );

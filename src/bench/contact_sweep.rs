@@ -53,6 +53,10 @@ pub struct SweepCounts {
     pub ok: usize,
     /// Of those, frames within the tolerance (the rest hit the iteration cap or stalled).
     pub converged: usize,
+    /// Of those, frames whose bone pose could not be reached from the last frame and that
+    /// were solved from rest ([`crate::sim::ContactStats::from_rest`]).
+    #[serde(default)]
+    pub from_rest: usize,
     /// Frames whose result had inverted elements ([`SimError::Inverted`]).
     pub inverted: usize,
     /// Frames whose result crossed a contact surface ([`SimError::Intersecting`]).
@@ -100,11 +104,12 @@ impl SweepReport {
         ] {
             if let Some(c) = c {
                 out += &format!(
-                    "{name}: {} frames, {} ok ({} converged), {} inverted (elements median {}, max {}), \
+                    "{name}: {} frames, {} ok ({} converged, {} from rest), {} inverted (elements median {}, max {}), \
                      {} intersecting, {} other errors {:?}; frame median {:.1} ms, max {:.1} ms\n",
                     c.frames,
                     c.ok,
                     c.converged,
+                    c.from_rest,
                     c.inverted,
                     c.median_inverted_elements,
                     c.max_inverted_elements,
@@ -161,6 +166,7 @@ impl Tally {
         match result {
             Ok(stats) => {
                 c.ok += 1;
+                c.from_rest += usize::from(from_rest(stats));
                 if stats.termination == crate::sim::Termination::Converged {
                     c.converged += 1;
                     FrameOutcome::Converged
@@ -216,6 +222,12 @@ pub struct SolveReport {
     pub time: Duration,
     /// The solver's message for a failed solve.
     pub error: Option<String>,
+    /// The frame was solved from rest (its pose unreachable from the last frame).
+    pub from_rest: bool,
+}
+
+fn from_rest(stats: &SolveStats) -> bool {
+    stats.contact.as_ref().is_some_and(|c| c.from_rest)
 }
 
 /// Solves `codes` in order on `model` driven by `actuation`, at `quality`, in `mode`; a
@@ -260,6 +272,7 @@ pub fn sweep(
                 outcome,
                 time,
                 error: r.as_ref().err().map(|e| e.to_string()),
+                from_rest: r.as_ref().is_ok_and(from_rest),
             },
         );
         outcome

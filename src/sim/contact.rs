@@ -92,6 +92,10 @@ pub struct ContactStats {
     /// moved only the teeth; see [`super::staging`]).
     #[serde(default)]
     pub carried_stages: usize,
+    /// Whether the bone pose could not be reached from the starting state and the solve
+    /// started over from rest ([`super::SimError::PoseUnreachable`]).
+    #[serde(default)]
+    pub from_rest: bool,
     /// Edge–triangle crossings of the contact surface after the solve that were not there at
     /// rest: always 0 in a returned result (anything else is [`super::SimError::Intersecting`]).
     pub new_crossings: usize,
@@ -130,6 +134,9 @@ pub(crate) struct ContactModel {
     pub(crate) stiffness_scale: f64,
     pub(crate) step: ContactStep,
     pub(crate) gate: super::contact_gate::ContactGate,
+    /// Most bone-pose stages a solve may take ([`super::solver::MAX_POSE_STAGES`]; tests
+    /// lower it).
+    pub(crate) stage_limit: usize,
 }
 
 impl ContactModel {
@@ -149,6 +156,7 @@ impl ContactModel {
             stiffness_scale,
             step: ContactStep::default(),
             gate: super::contact_gate::ContactGate::default(),
+            stage_limit: super::solver::MAX_POSE_STAGES,
         }
     }
 }

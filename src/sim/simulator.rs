@@ -61,6 +61,11 @@ pub enum SimError {
     LossGradientSize { expected: usize, got: usize },
     #[error("contact: {0}")]
     Contact(#[from] crate::contact::ContactError),
+    /// The bone pose could not be reached from the starting state in collision-free stages
+    /// (a solve from a frame other than rest then tries again from rest: see
+    /// [`Simulator::solve`]).
+    #[error("the bone pose could not be reached without crossing: {0}")]
+    PoseUnreachable(String),
     #[error(
         "the contact surfaces intersect after the solve ({count} edge–triangle crossings): \
          a bug, since every step is collision-checked"
@@ -318,6 +323,17 @@ impl Simulator {
     }
 
     /// The rest configuration with identity rotations: the cold start.
+    /// Whether `state` is the rest state's configuration (rest positions, rest bone pose).
+    pub(crate) fn at_rest(&self, state: &SimState) -> bool {
+        state.bones == BonePose::default()
+            && self
+                .mesh
+                .vertices
+                .iter()
+                .zip(state.x.chunks_exact(3))
+                .all(|(p, x)| x == [p.x, p.y, p.z])
+    }
+
     pub fn rest_state(&self) -> SimState {
         let x = self
             .mesh

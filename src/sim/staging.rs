@@ -562,6 +562,23 @@ mod tests {
         ),
     ) {
         let (sim, actuation) = sample_sim();
+        solve_sweep_on(&sim, actuation.as_ref(), count, seed, each);
+    }
+
+    /// [`solve_sweep`] on a simulator set up by the caller.
+    fn solve_sweep_on(
+        sim: &Simulator,
+        actuation: &dyn crate::drive::ActuationModel,
+        count: usize,
+        seed: u64,
+        mut each: impl FnMut(
+            usize,
+            &Simulator,
+            &crate::drive::Actuation,
+            &crate::sim::SolveStats,
+            &crate::sim::SimState,
+        ),
+    ) {
         let settings = Quality::Interactive.settings();
         let mut state = sim.rest_state();
         for (frame, code) in random_codes(count, seed).iter().enumerate() {
@@ -571,8 +588,8 @@ mod tests {
                 .solve(&a.tensors, &bones, &mut state, &settings)
                 .unwrap_or_else(|e| panic!("frame {frame}: {e}"));
             assert_eq!(state.bones, bones);
-            assert_crossing_and_fold_free(&sim, &state, frame);
-            each(frame, &sim, &a, &stats, &state);
+            assert_crossing_and_fold_free(sim, &state, frame);
+            each(frame, sim, &a, &stats, &state);
         }
     }
 
@@ -728,6 +745,34 @@ mod tests {
                 assert!(c <= 8, "frame 7: {c} stages");
             }
         });
+    }
+
+    /// A frame whose pose cannot be reached from the last frame within the stage limit is
+    /// solved from rest (and says so); from rest itself the error is returned. Seed 127's
+    /// codes 0–7 with the limit lowered to one stage: frame 7 needs two from frame 6 (above)
+    /// and one from rest; with no stage allowed, a frame from rest fails as unreachable.
+    #[test]
+    fn unreachable_pose_is_solved_from_rest() {
+        let (mut sim, actuation) = sample_sim();
+        sim.contact.as_mut().unwrap().stage_limit = 1;
+        let mut restarted = Vec::new();
+        solve_sweep_on(&sim, actuation.as_ref(), 8, 127, |frame, _, _, stats, _| {
+            if stats.contact.as_ref().unwrap().from_rest {
+                restarted.push(frame);
+            }
+        });
+        assert!(restarted.contains(&7), "restarted from rest: {restarted:?}");
+        assert!(!restarted.contains(&0), "frame 0 starts at rest");
+
+        sim.contact.as_mut().unwrap().stage_limit = 0;
+        let a = actuation.actuate(&random_codes(1, 127)[0]).unwrap();
+        let mut state = sim.rest_state();
+        let settings = Quality::Interactive.settings();
+        let r = sim.solve(&a.tensors, &a.bones(), &mut state, &settings);
+        assert!(
+            matches!(r, Err(crate::sim::SimError::PoseUnreachable(_))),
+            "{r:?}"
+        );
     }
 
     /// Seed 162's second code (`facesim bench contact --sweep 16 --sweep-seed 162`) pressed a
