@@ -547,26 +547,11 @@ mod tests {
     }
 
     /// Solves the first `count` codes of the seeded random sweep (as `bench contact --sweep
-    /// count --sweep-seed seed` does: interactive preset, warm-started from rest) on the
-    /// sample; every frame must solve, reach its pose and be crossing- and fold-free. `each`
-    /// then sees the frame, the simulator, the frame's actuation, its stats and the state.
+    /// count --sweep-seed seed` does: interactive preset, warm-started from rest) on `sim`
+    /// (the sample's, see [`sample_sim`]); every frame must solve, reach its pose and be
+    /// crossing- and fold-free. `each` then sees the frame, the simulator, the frame's
+    /// actuation, its stats and the state.
     fn solve_sweep(
-        count: usize,
-        seed: u64,
-        mut each: impl FnMut(
-            usize,
-            &Simulator,
-            &crate::drive::Actuation,
-            &crate::sim::SolveStats,
-            &crate::sim::SimState,
-        ),
-    ) {
-        let (sim, actuation) = sample_sim();
-        solve_sweep_on(&sim, actuation.as_ref(), count, seed, each);
-    }
-
-    /// [`solve_sweep`] on a simulator set up by the caller.
-    fn solve_sweep_on(
         sim: &Simulator,
         actuation: &dyn crate::drive::ActuationModel,
         count: usize,
@@ -719,7 +704,8 @@ mod tests {
     /// fold-free, frame 10 in few stages.
     #[test]
     fn seed_7_sweep_solves_its_large_jaw_swing() {
-        solve_sweep(11, 7, |frame, _, _, stats, _| {
+        let (sim, actuation) = sample_sim();
+        solve_sweep(&sim, actuation.as_ref(), 11, 7, |frame, _, _, stats, _| {
             let c = stats.contact.as_ref().map_or(0, |c| c.pose_stages);
             eprintln!(
                 "frame {frame}: {c} stages, {:.1} s",
@@ -739,7 +725,8 @@ mod tests {
     /// solves, frame 7 in few stages.
     #[test]
     fn seed_127_sweep_certifies_stages_past_pressed_pairs() {
-        solve_sweep(8, 127, |frame, _, _, stats, _| {
+        let (sim, actuation) = sample_sim();
+        solve_sweep(&sim, actuation.as_ref(), 8, 127, |frame, _, _, stats, _| {
             let c = stats.contact.as_ref().map_or(0, |c| c.pose_stages);
             if frame == 7 {
                 assert!(c <= 8, "frame 7: {c} stages");
@@ -756,7 +743,7 @@ mod tests {
         let (mut sim, actuation) = sample_sim();
         sim.contact.as_mut().unwrap().stage_limit = 1;
         let mut restarted = Vec::new();
-        solve_sweep_on(&sim, actuation.as_ref(), 8, 127, |frame, _, _, stats, _| {
+        solve_sweep(&sim, actuation.as_ref(), 8, 127, |frame, _, _, stats, _| {
             if stats.contact.as_ref().unwrap().from_rest {
                 restarted.push(frame);
             }
@@ -782,7 +769,8 @@ mod tests {
     /// solve crossing-free.
     #[test]
     fn seed_162_keeps_the_lip_off_the_lining_it_rests_against() {
-        solve_sweep(2, 162, |_, sim, _, _, _| {
+        let (sim, actuation) = sample_sim();
+        solve_sweep(&sim, actuation.as_ref(), 2, 162, |_, sim, _, _, _| {
             let (pt, ee) = sim.contact.as_ref().unwrap().face.close_pairs();
             assert!(pt > 0 && ee > 0, "the sample has close pairs");
         });
@@ -796,50 +784,57 @@ mod tests {
     /// that translation, contact curvature and the teeth's push included.
     #[test]
     fn large_jaw_swings_solve_in_few_carried_stages() {
-        solve_sweep(2, 1, |frame, sim, a, stats, state| {
-            let c = stats.contact.as_ref().expect("contact ran");
-            eprintln!(
-                "frame {frame}: {} stages ({} carried), {} iterations, {:.1} s",
-                c.pose_stages,
-                c.carried_stages,
-                stats.iterations,
-                stats.wall_time.as_secs_f64()
-            );
-            assert!(
-                c.pose_stages <= 16,
-                "frame {frame}: {} stages",
-                c.pose_stages
-            );
-            assert!(
-                c.carried_stages >= 1,
-                "frame {frame}: the tissue was never carried"
-            );
+        let (sim, actuation) = sample_sim();
+        solve_sweep(
+            &sim,
+            actuation.as_ref(),
+            2,
+            1,
+            |frame, sim, a, stats, state| {
+                let c = stats.contact.as_ref().expect("contact ran");
+                eprintln!(
+                    "frame {frame}: {} stages ({} carried), {} iterations, {:.1} s",
+                    c.pose_stages,
+                    c.carried_stages,
+                    stats.iterations,
+                    stats.wall_time.as_secs_f64()
+                );
+                assert!(
+                    c.pose_stages <= 16,
+                    "frame {frame}: {} stages",
+                    c.pose_stages
+                );
+                assert!(
+                    c.carried_stages >= 1,
+                    "frame {frame}: the tissue was never carried"
+                );
 
-            if frame == 0 {
-                let model = sim.contact.as_ref().unwrap();
-                let bones = a.bones();
-                // Contact is active here (lips pressed, teeth close): translate the head.
-                assert!(c.active_pairs > 0);
-                let shift = Vector3::new(0.3, -0.2, 0.1);
-                let moved = BonePose {
-                    skull: crate::sim::RigidMotion {
-                        translation: bones.skull.translation + shift,
-                        ..bones.skull
-                    },
-                    ..bones
-                };
-                let carrier = sim
-                    .carrier(model, &a.tensors, &state.x, &state.steps, &bones)
-                    .unwrap();
-                let dx = sim
-                    .carried_displacement(&carrier, &state.x, &moved)
-                    .unwrap();
-                let worst = dx
-                    .chunks_exact(3)
-                    .map(|d| (Vector3::new(d[0], d[1], d[2]) - shift).norm())
-                    .fold(0.0, f64::max);
-                assert!(worst < 1e-6 * shift.norm(), "worst deviation {worst:e} cm");
-            }
-        });
+                if frame == 0 {
+                    let model = sim.contact.as_ref().unwrap();
+                    let bones = a.bones();
+                    // Contact is active here (lips pressed, teeth close): translate the head.
+                    assert!(c.active_pairs > 0);
+                    let shift = Vector3::new(0.3, -0.2, 0.1);
+                    let moved = BonePose {
+                        skull: crate::sim::RigidMotion {
+                            translation: bones.skull.translation + shift,
+                            ..bones.skull
+                        },
+                        ..bones
+                    };
+                    let carrier = sim
+                        .carrier(model, &a.tensors, &state.x, &state.steps, &bones)
+                        .unwrap();
+                    let dx = sim
+                        .carried_displacement(&carrier, &state.x, &moved)
+                        .unwrap();
+                    let worst = dx
+                        .chunks_exact(3)
+                        .map(|d| (Vector3::new(d[0], d[1], d[2]) - shift).norm())
+                        .fold(0.0, f64::max);
+                    assert!(worst < 1e-6 * shift.norm(), "worst deviation {worst:e} cm");
+                }
+            },
+        );
     }
 }
