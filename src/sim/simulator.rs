@@ -322,7 +322,6 @@ impl Simulator {
         self.mesh.vertex_count()
     }
 
-    /// The rest configuration with identity rotations: the cold start.
     /// Whether `state` is the rest state's configuration (rest positions, rest bone pose).
     pub(crate) fn at_rest(&self, state: &SimState) -> bool {
         state.bones == BonePose::default()
@@ -334,6 +333,7 @@ impl Simulator {
                 .all(|(p, x)| x == [p.x, p.y, p.z])
     }
 
+    /// The rest configuration with identity rotations: the cold start.
     pub fn rest_state(&self) -> SimState {
         let x = self
             .mesh
