@@ -6,28 +6,45 @@ fn facesim() -> Command {
     Command::new(env!("CARGO_BIN_EXE_facesim"))
 }
 
-#[test]
-fn bench_solver_prints_a_table_and_writes_json() {
-    let json = std::env::temp_dir().join(format!("facesim-bench-{}.json", std::process::id()));
-    let out = facesim()
-        .args([
-            "bench",
-            "solver",
-            "--elements",
-            "600",
-            "--samples",
-            "1",
-            "--json",
-        ])
-        .arg(&json)
-        .output()
-        .unwrap();
+/// Runs `command`, which must succeed (its stderr is the message otherwise); its stdout.
+fn stdout_of(command: &mut Command) -> String {
+    let out = command.output().unwrap();
     assert!(
         out.status.success(),
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
-    let table = String::from_utf8(out.stdout).unwrap();
+    String::from_utf8(out.stdout).unwrap()
+}
+
+/// Runs `command`, which must fail; its stderr.
+fn stderr_of_failure(command: &mut Command) -> String {
+    let out = command.output().unwrap();
+    assert!(!out.status.success(), "{command:?} succeeded");
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+/// The face rig the training and evaluation commands read.
+fn rig_dir() -> String {
+    std::env::var("FACESIM_RIG_DIR").unwrap_or_else(|_| "../shared/data/ict-facekit".into())
+}
+
+#[test]
+fn bench_solver_prints_a_table_and_writes_json() {
+    let json = std::env::temp_dir().join(format!("facesim-bench-{}.json", std::process::id()));
+    let table = stdout_of(
+        facesim()
+            .args([
+                "bench",
+                "solver",
+                "--elements",
+                "600",
+                "--samples",
+                "1",
+                "--json",
+            ])
+            .arg(&json),
+    );
     assert!(
         table.contains("| elements |") && table.lines().count() == 3,
         "{table}"
@@ -50,12 +67,10 @@ fn bench_solver_prints_a_table_and_writes_json() {
 
 #[test]
 fn bad_arguments_fail_with_a_message() {
-    let out = facesim()
-        .args(["bench", "solver", "--elements", "many"])
-        .output()
-        .unwrap();
-    assert!(!out.status.success());
-    assert!(String::from_utf8_lossy(&out.stderr).contains("invalid value"));
+    assert!(
+        stderr_of_failure(facesim().args(["bench", "solver", "--elements", "many"]))
+            .contains("invalid value")
+    );
 }
 
 /// The displacement baseline end to end: `train --stage displacement` (a few poses per face,
@@ -63,36 +78,30 @@ fn bad_arguments_fail_with_a_message() {
 /// a held-out code with it beside the physics models and writes the transfer table.
 #[test]
 fn train_displacement_then_eval_with_it() {
-    let rig =
-        std::env::var("FACESIM_RIG_DIR").unwrap_or_else(|_| "../shared/data/ict-facekit".into());
+    let rig = rig_dir();
     let dir = std::env::temp_dir().join(format!("facesim-displacement-{}", std::process::id()));
     std::fs::remove_dir_all(&dir).ok();
-    let out = facesim()
-        .args([
-            "train",
-            "--stage",
-            "displacement",
-            "--sample",
-            "sample_models/ict",
-            "--rig",
-            &rig,
-        ])
-        .args([
-            "--iterations",
-            "3",
-            "--combinations",
-            "0",
-            "--seed",
-            "2",
-            "--out",
-        ])
-        .arg(&dir)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+    stdout_of(
+        facesim()
+            .args([
+                "train",
+                "--stage",
+                "displacement",
+                "--sample",
+                "sample_models/ict",
+                "--rig",
+                &rig,
+            ])
+            .args([
+                "--iterations",
+                "3",
+                "--combinations",
+                "0",
+                "--seed",
+                "2",
+                "--out",
+            ])
+            .arg(&dir),
     );
     let model = dir.join("displacement.nn");
     assert!(model.exists() && dir.join("displacement-checkpoint.nn").exists());
@@ -104,27 +113,21 @@ fn train_displacement_then_eval_with_it() {
     );
 
     let eval = dir.join("eval");
-    let out = facesim()
-        .args(["eval", "--sample", "sample_models/ict", "--rig", &rig])
-        .args([
-            "--model",
-            "sample_models/ict/generative.nn",
-            "--held-out",
-            "1",
-            "--transfer",
-        ])
-        .arg("--displacement")
-        .arg(&model)
-        .arg("--out")
-        .arg(&eval)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+    let table = stdout_of(
+        facesim()
+            .args(["eval", "--sample", "sample_models/ict", "--rig", &rig])
+            .args([
+                "--model",
+                "sample_models/ict/generative.nn",
+                "--held-out",
+                "1",
+                "--transfer",
+            ])
+            .arg("--displacement")
+            .arg(&model)
+            .arg("--out")
+            .arg(&eval),
     );
-    let table = String::from_utf8(out.stdout).unwrap();
     assert!(
         table.contains("| neutral | displacement | 1/1 |"),
         "{table}"
@@ -133,23 +136,24 @@ fn train_displacement_then_eval_with_it() {
     let transfer = std::fs::read_to_string(eval.join("transfer.md")).unwrap();
     assert!(transfer.contains("identity001 basis on B"), "{transfer}");
     // A stage-1 file is not a baseline.
-    let out = facesim()
-        .args([
-            "eval",
-            "--sample",
-            "sample_models/ict",
-            "--rig",
-            &rig,
-            "--held-out",
-            "1",
-        ])
-        .args(["--model", "sample_models/ict/generative.nn"])
-        .args(["--displacement", "sample_models/ict/generative.nn", "--out"])
-        .arg(&eval)
-        .output()
-        .unwrap();
-    assert!(!out.status.success());
-    assert!(String::from_utf8_lossy(&out.stderr).contains("not a displacement-baseline file"));
+    assert!(
+        stderr_of_failure(
+            facesim()
+                .args([
+                    "eval",
+                    "--sample",
+                    "sample_models/ict",
+                    "--rig",
+                    &rig,
+                    "--held-out",
+                    "1",
+                ])
+                .args(["--model", "sample_models/ict/generative.nn"])
+                .args(["--displacement", "sample_models/ict/generative.nn", "--out"])
+                .arg(&eval)
+        )
+        .contains("not a displacement-baseline file")
+    );
     std::fs::remove_dir_all(&dir).ok();
 }
 
@@ -158,47 +162,71 @@ fn train_displacement_then_eval_with_it() {
 /// networks it wrote load in `eval`; a second run refuses to overwrite the checkpoint.
 #[test]
 fn train_stage2_then_eval_with_it() {
-    let rig =
-        std::env::var("FACESIM_RIG_DIR").unwrap_or_else(|_| "../shared/data/ict-facekit".into());
+    let rig = rig_dir();
     let dir = std::env::temp_dir().join(format!("facesim-stage2-{}", std::process::id()));
     std::fs::remove_dir_all(&dir).ok();
     let train = || {
-        facesim()
+        let mut command = facesim();
+        command
             .args(["train", "--stage", "2", "--sample", "sample_models/ict"])
             .args(["--init", "sample_models/ict/generative.nn", "--rig", &rig])
             .args(["--iterations", "2", "--batch", "2", "--combinations", "0"])
             .arg("--out")
-            .arg(&dir)
-            .output()
-            .unwrap()
+            .arg(&dir);
+        command
     };
-    let out = train();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    stdout_of(&mut train());
     let model = dir.join("generative-stage2.nn");
     assert!(model.exists() && dir.join("stage2-checkpoint.nn").exists());
     let csv = std::fs::read_to_string(dir.join("stage2-loss.csv")).unwrap();
     assert_eq!(csv.lines().count(), 3, "{csv}");
     assert!(csv.lines().next().unwrap().ends_with(",skipped_poses"));
-    assert!(!train().status.success(), "the checkpoint exists");
+    stderr_of_failure(&mut train()); // the checkpoint exists
 
-    let out = facesim()
-        .args(["eval", "--sample", "sample_models/ict", "--rig", &rig])
-        .args(["--held-out", "1", "--model"])
-        .arg(&model)
-        .arg("--out")
-        .arg(dir.join("eval"))
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+    let table = stdout_of(
+        facesim()
+            .args(["eval", "--sample", "sample_models/ict", "--rig", &rig])
+            .args(["--held-out", "1", "--model"])
+            .arg(&model)
+            .arg("--out")
+            .arg(dir.join("eval")),
     );
-    let table = String::from_utf8(out.stdout).unwrap();
     assert!(table.contains("| neutral | networks | 1/1 |"), "{table}");
     std::fs::remove_dir_all(&dir).ok();
+}
+
+/// The random-code sweep as the acceptance run drives it (`bench contact --sweep`, on the
+/// bundled sample): per-frame lines on stderr, the summary with how many frames were solved
+/// from rest, and the JSON report.
+#[test]
+fn contact_sweep_reports_frames_and_writes_json() {
+    let json = std::env::temp_dir().join(format!("facesim-sweep-{}.json", std::process::id()));
+    let out = facesim()
+        .args([
+            "bench",
+            "contact",
+            "--sweep",
+            "2",
+            "--sweep-seed",
+            "127",
+            "--json",
+        ])
+        .arg(&json)
+        .output()
+        .unwrap();
+    let (stdout, stderr) = (
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr),
+    );
+    assert!(out.status.success(), "{stderr}");
+    assert!(stderr.contains("frame 1 (contact): "), "{stderr}");
+    assert!(
+        stdout.contains("contact on: 2 frames, 2 ok (") && stdout.contains(" from rest), "),
+        "{stdout}"
+    );
+    let report: serde_json::Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
+    std::fs::remove_file(&json).ok();
+    assert_eq!(report["contact"]["ok"], 2);
+    assert_eq!(report["contact"]["intersecting"], 0);
+    assert_eq!(report["contact"]["from_rest"], 0);
 }
