@@ -14,7 +14,7 @@ use super::stage2::{
     SkinPoint, Stage2Data, Stage2Face, Stage2Pose, Stage2Settings, Stage2Trainer, pose_loss,
     stage2_loss,
 };
-use super::tests::tiny;
+use super::tests::{bits, tiny};
 use super::train::Stage1Config;
 use crate::drive::Codes;
 use crate::rig::test_support::temp_dir;
@@ -153,13 +153,6 @@ fn nets(seed: u64) -> GenerativeNets {
         *p *= 3.0;
     }
     n
-}
-
-fn bits(nets: &GenerativeNets) -> Vec<u64> {
-    nets.nets()
-        .iter()
-        .flat_map(|n| n.params().iter().map(|p| p.to_bits()))
-        .collect()
 }
 
 /// The whole stage-2 gradient — solve, surface loss, adjoint, exp′, warp, N_A, N_B, tanh,

@@ -94,7 +94,9 @@ fn small_data() -> &'static Stage1Data {
     })
 }
 
-fn small_config(iterations: u64, seed: u64) -> Stage1Config {
+/// Stage-1 training settings small enough for a unit test (the tiny networks, 3 poses of
+/// 64 elements a batch).
+pub(crate) fn small_config(iterations: u64, seed: u64) -> Stage1Config {
     Stage1Config {
         architecture: tiny(),
         iterations,
@@ -108,8 +110,9 @@ fn small_config(iterations: u64, seed: u64) -> Stage1Config {
     }
 }
 
-fn bits(nets: &GenerativeNets) -> Vec<u64> {
-    nets.nets()
+/// Every parameter of `nets`, bit for bit (to test that training is deterministic).
+pub(crate) fn bits(nets: &impl NetworkSet) -> Vec<u64> {
+    nets.networks()
         .iter()
         .flat_map(|n| n.params().iter().map(|p| p.to_bits()))
         .collect()

@@ -14,8 +14,8 @@ use crate::generative::data::{PoseSettings, training_codes};
 use crate::generative::face::FaceWarp;
 use crate::generative::loss::{LossWeights, LossWorkspace};
 use crate::generative::metrics::{VolumeChange, lip_crossings};
-use crate::generative::tests::{basis_poses, frame, sample, tiny};
-use crate::generative::train::{ModelTrainer, Stage1Config, train_model};
+use crate::generative::tests::{basis_poses, bits, frame, sample, small_config, tiny};
+use crate::generative::train::{ModelTrainer, train_model};
 use crate::generative::{GenerativeNets, LossRow};
 use crate::geometry::TetMesh;
 use crate::rig::test_support::temp_dir;
@@ -73,31 +73,10 @@ fn data() -> &'static DisplacementData {
     })
 }
 
-fn config(iterations: u64, seed: u64) -> Stage1Config {
-    Stage1Config {
-        architecture: tiny(),
-        iterations,
-        batch_poses: 3,
-        elements_per_pose: 64,
-        learning_rate: 3e-3,
-        seed,
-        chunk_rows: 32,
-        lanes: 4,
-        ..Stage1Config::default()
-    }
-}
-
 fn zero(nets: &DisplacementNets) -> Vec<Vec<f64>> {
     nets.nets()
         .iter()
         .map(|n| vec![0.0; n.num_params()])
-        .collect()
-}
-
-fn bits(nets: &DisplacementNets) -> Vec<u64> {
-    nets.nets()
-        .iter()
-        .flat_map(|n| n.params().iter().map(|p| p.to_bits()))
         .collect()
 }
 
@@ -106,7 +85,7 @@ fn bits(nets: &DisplacementNets) -> Vec<u64> {
 #[test]
 #[allow(clippy::needless_range_loop)] // n indexes the networks and their gradients alike
 fn displacement_loss_gradient_matches_central_differences() {
-    let batch = data().batch(&config(1, 5), 0);
+    let batch = data().batch(&small_config(1, 5), 0);
     assert_eq!(batch.counts, vec![64, 64, 64]);
     let mut nets = DisplacementNets::new(tiny(), frame(), 9).unwrap();
     // Off the kink of the initial Lipschitz bound (see the stage-1 gradient test).
@@ -160,23 +139,23 @@ fn displacement_loss_gradient_matches_central_differences() {
 #[test]
 fn displacement_training_lowers_the_loss_deterministically() {
     let data = data();
-    let (nets, rows) = train_model(data, config(150, 2), frame(), |_| {}).unwrap();
+    let (nets, rows) = train_model(data, small_config(150, 2), frame(), |_| {}).unwrap();
     let mean = |r: &[LossRow]| r.iter().map(|r| r.parts.total).sum::<f64>() / r.len() as f64;
     let (first, last) = (mean(&rows[..10]), mean(&rows[rows.len() - 10..]));
     assert!(last < 0.5 * first, "loss {first} → {last}");
 
-    let (a, rows_a) = train_model(data, config(6, 11), frame(), |_| {}).unwrap();
-    let (b, rows_b) = train_model(data, config(6, 11), frame(), |_| {}).unwrap();
+    let (a, rows_a) = train_model(data, small_config(6, 11), frame(), |_| {}).unwrap();
+    let (b, rows_b) = train_model(data, small_config(6, 11), frame(), |_| {}).unwrap();
     assert_eq!(bits(&a), bits(&b));
     assert_eq!(rows_a, rows_b);
-    let (c, _) = train_model(data, config(6, 12), frame(), |_| {}).unwrap();
+    let (c, _) = train_model(data, small_config(6, 12), frame(), |_| {}).unwrap();
     assert_ne!(bits(&a), bits(&c));
-    let mut t = ModelTrainer::new(data, config(6, 11), frame()).unwrap();
+    let mut t = ModelTrainer::new(data, small_config(6, 11), frame()).unwrap();
     for _ in 0..3 {
         t.step().unwrap();
     }
     let ck = t.checkpoint();
-    let mut resumed = ModelTrainer::resume(data, config(6, 11), &ck).unwrap();
+    let mut resumed = ModelTrainer::resume(data, small_config(6, 11), &ck).unwrap();
     while !resumed.done() {
         resumed.step().unwrap();
     }
@@ -218,7 +197,7 @@ fn displacement_face_poses_vertices_and_jaw() {
 
     // Trained on the template and identity 0: on the template (φ the identity) a training
     // pose's prediction is much closer to its label than the rest is.
-    let (nets, _) = train_model(data(), config(3000, 4), frame(), |_| {}).unwrap();
+    let (nets, _) = train_model(data(), small_config(3000, 4), frame(), |_| {}).unwrap();
     let t = &s.faces[0];
     let face = DisplacementFace::new(Arc::new(nets), &t.model, None).unwrap();
     let labels = &data().faces[0];
