@@ -7,26 +7,26 @@ use rand_chacha::ChaCha8Rng;
 use super::*;
 use crate::contact::test_scenes::{two_sheet_mesh, two_sheets};
 
-/// Allowed pairs closer than `within` at `y`, by brute force.
+/// Allowed pairs closer than `within` at `y`, by brute force: `(true, vertex, face)` or
+/// `(false, edge a, edge b)`.
 fn close_pairs(mesh: &ContactMesh, y: &[f64], within: f64) -> Vec<(bool, u32, u32)> {
     let all = Candidates::build(mesh, y, 10.0).unwrap();
-    let faces = mesh.faces();
-    let edges = mesh.edges();
-    let mut out = Vec::new();
-    for c in &all.point_triangle {
-        let f = faces[c.face as usize];
-        if Stencil::PointTriangle([c.vertex, f[0], f[1], f[2]]).distance(y) < within {
-            out.push((true, c.vertex, c.face));
-        }
+    let pt = all.point_triangle.iter().map(|c| (true, c.vertex, c.face));
+    let ee = all.edge_edge.iter().map(|c| (false, c.edge_a, c.edge_b));
+    pt.chain(ee)
+        .filter(|p| stencil_of(mesh, p).distance(y) < within)
+        .collect()
+}
+
+/// The four vertices of a pair as [`close_pairs`] names it.
+fn stencil_of(mesh: &ContactMesh, &(is_pt, a, b): &(bool, u32, u32)) -> Stencil {
+    if is_pt {
+        let f = mesh.faces()[b as usize];
+        Stencil::PointTriangle([a, f[0], f[1], f[2]])
+    } else {
+        let ([a0, a1], [b0, b1]) = (mesh.edges()[a as usize], mesh.edges()[b as usize]);
+        Stencil::EdgeEdge([a0, a1, b0, b1])
     }
-    for c in &all.edge_edge {
-        let [a0, a1] = edges[c.edge_a as usize];
-        let [b0, b1] = edges[c.edge_b as usize];
-        if Stencil::EdgeEdge([a0, a1, b0, b1]).distance(y) < within {
-            out.push((false, c.edge_a, c.edge_b));
-        }
-    }
-    out
 }
 
 fn contains(c: &Candidates, p: &(bool, u32, u32)) -> bool {
@@ -220,15 +220,9 @@ fn close_pairs_are_near_only_when_they_can_reach_their_own_activation() {
     let plain = two_sheet_mesh(&y, &faces);
     let (dhat, slack) = (0.03, 0.05);
     let (mut pt, mut ee) = (Vec::new(), Vec::new());
-    for (is_pt, a, b) in close_pairs(&plain, &y, dhat) {
-        let ids = if is_pt {
-            let f = plain.faces()[b as usize];
-            Stencil::PointTriangle([a, f[0], f[1], f[2]])
-        } else {
-            let ([a0, a1], [b0, b1]) = (plain.edges()[a as usize], plain.edges()[b as usize]);
-            Stencil::EdgeEdge([a0, a1, b0, b1])
-        };
-        let own = 0.5 * ids.distance(&y);
+    for p in close_pairs(&plain, &y, dhat) {
+        let (is_pt, a, b) = p;
+        let own = 0.5 * stencil_of(&plain, &p).distance(&y);
         if is_pt {
             pt.push(((a, b), own))
         } else {
@@ -242,6 +236,7 @@ fn close_pairs_are_near_only_when_they_can_reach_their_own_activation() {
     let mesh = plain.clone().with_close_pairs(pt, ee);
     let fixed = FixedPrimitives::new(&mesh, &y).unwrap();
     let list = VerletList::build(&mesh, &fixed, &y, dhat, slack).unwrap();
+    let plain_list = VerletList::build(&plain, &fixed, &y, dhat, slack).unwrap();
     let activation = |p: &(bool, u32, u32)| {
         match *p {
             (true, v, f) => mesh.point_triangle_activation(v, f),
@@ -263,8 +258,7 @@ fn close_pairs_are_near_only_when_they_can_reach_their_own_activation() {
         } else {
             list.near_beyond(&mesh, &fixed, &at, &dy, dhat).unwrap().0
         };
-        let near_plain = VerletList::build(&plain, &fixed, &y, dhat, slack)
-            .unwrap()
+        let near_plain = plain_list
             .near_beyond(&plain, &fixed, &at, &dy, dhat)
             .unwrap()
             .0;
@@ -272,15 +266,7 @@ fn close_pairs_are_near_only_when_they_can_reach_their_own_activation() {
         for s in [0.0, 0.25, 0.5, 0.75, 1.0] {
             let ys: Vec<f64> = at.iter().zip(&dy).map(|(p, d)| p + s * d).collect();
             for p in close_pairs(&mesh, &ys, dhat) {
-                let (is_pt, a, b) = p;
-                let ids = if is_pt {
-                    let f = mesh.faces()[b as usize];
-                    Stencil::PointTriangle([a, f[0], f[1], f[2]])
-                } else {
-                    let ([a0, a1], [b0, b1]) = (mesh.edges()[a as usize], mesh.edges()[b as usize]);
-                    Stencil::EdgeEdge([a0, a1, b0, b1])
-                };
-                if ids.distance(&ys) < activation(&p) {
+                if stencil_of(&mesh, &p).distance(&ys) < activation(&p) {
                     assert!(contains(&near, &p), "trial {trial}, s = {s}: missed {p:?}");
                     checked += 1;
                 }
