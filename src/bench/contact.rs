@@ -72,6 +72,10 @@ pub struct ContactBenchRow {
     pub frame_ms: f64,
     pub iterations: f64,
     pub broad_phase_ms: f64,
+    /// Moving the bones: the carried starts' linearizations and the stages' certificates.
+    pub staging_ms: f64,
+    /// The after-solve crossing check.
+    pub check_ms: f64,
     pub barrier_ms: f64,
     pub ccd_ms: f64,
     pub linear_ms: f64,
@@ -203,6 +207,8 @@ pub fn bench(model: &FaceModel, frames: usize) -> Result<Vec<ContactBenchRow>, S
             frame_ms: per(&|s| ms(s.wall_time)),
             iterations: per(&|s| s.iterations as f64),
             broad_phase_ms: contact_ms(&|c| c.broad_phase_time),
+            staging_ms: contact_ms(&|c| c.staging_time),
+            check_ms: contact_ms(&|c| c.check_time),
             barrier_ms: contact_ms(&|c| c.barrier_time),
             ccd_ms: contact_ms(&|c| c.ccd_time),
             linear_ms: contact_ms(&|c| c.linear_time),
@@ -266,11 +272,11 @@ pub fn contact_label(r: &ContactBenchRow) -> &'static str {
 /// The rows as a Markdown table.
 pub fn table(rows: &[ContactBenchRow]) -> String {
     let mut out = String::from(
-        "| sequence | preset | contact | step | frames ok | skipped | refused | gate ms | converged | frame ms | iterations | broad phase ms | barrier ms | CCD ms | linear ms | active pairs | lists built | pairs per step |\n|---|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+        "| sequence | preset | contact | step | frames ok | skipped | refused | gate ms | converged | frame ms | iterations | broad phase ms | barrier ms | CCD ms | linear ms | staging ms | check ms | active pairs | lists built | pairs per step |\n|---|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
     );
     for r in rows {
         out += &format!(
-            "| {} | {} | {} | {} | {}/{} | {} | {} | {:.1} | {} | {:.1} | {:.0} | {:.1} | {:.1} | {:.1} | {:.1} | {:.0} | {:.0} | {:.0} |\n",
+            "| {} | {} | {} | {} | {}/{} | {} | {} | {:.1} | {} | {:.1} | {:.0} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.0} | {:.0} | {:.0} |\n",
             r.sequence.name(),
             r.quality,
             contact_label(r),
@@ -287,6 +293,8 @@ pub fn table(rows: &[ContactBenchRow]) -> String {
             r.barrier_ms,
             r.ccd_ms,
             r.linear_ms,
+            r.staging_ms,
+            r.check_ms,
             r.active_pairs,
             r.candidate_builds,
             r.near_pairs,

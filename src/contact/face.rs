@@ -37,7 +37,7 @@ use super::ContactError;
 use super::candidates::{Candidates, EdgeFaceLayouts};
 use super::collisions::Collisions;
 use super::math::vertex;
-use super::mesh::{ContactMesh, NO_CELL};
+use super::mesh::{Cells, ContactMesh, NO_CELL};
 use crate::model::{Binding, FaceModel};
 use crate::rig::Region;
 use crate::rig::intersect::segment_crosses_triangle;
@@ -258,13 +258,27 @@ impl FaceContact {
             })
             .collect();
         let mesh = mesh.with_close_pairs(close_pt, close_ee);
-        let cells = render_vertices
-            .iter()
-            .map(|&r| match render.bindings[r as usize] {
-                Binding::Embedded { element, .. } => element,
-                _ => NO_CELL,
-            })
-            .collect();
+        let cells = Cells {
+            of_vertex: render_vertices
+                .iter()
+                .map(|&r| match render.bindings[r as usize] {
+                    Binding::Embedded { element, .. } => element,
+                    _ => NO_CELL,
+                })
+                .collect(),
+            inside: render_vertices
+                .iter()
+                .map(|&r| match render.bindings[r as usize] {
+                    Binding::Embedded { weights, .. } => weights.iter().all(|&w| w >= 0.0),
+                    _ => false,
+                })
+                .collect(),
+            face_neighbours: Vec::new(),
+        };
+        let cells = Cells {
+            face_neighbours: face_neighbours(&model.mesh.tets, &cells.of_vertex),
+            ..cells
+        };
         let mesh = mesh.with_cells(cells)?;
         let mut region_sim_vertices: Vec<u32> = bindings
             .iter()
@@ -435,7 +449,7 @@ impl FaceContact {
                 let t = faces[f as usize];
                 if t.contains(&a)
                     || t.contains(&b)
-                    || (skip_cells && self.mesh.one_cell(&[a, b, t[0], t[1], t[2]]))
+                    || (skip_cells && self.mesh.kept_apart(&[a, b], &t))
                 {
                     return;
                 }
@@ -456,4 +470,33 @@ impl FaceContact {
         out.sort_unstable();
         out
     }
+}
+
+/// The pairs of `cells` (elements of `tets`, [`NO_CELL`] skipped) that share a face.
+fn face_neighbours(tets: &[[u32; 4]], cells: &[u32]) -> Vec<(u32, u32)> {
+    let mut used: Vec<u32> = cells.iter().copied().filter(|&c| c != NO_CELL).collect();
+    used.sort_unstable();
+    used.dedup();
+    let mut faces: Vec<([u32; 3], u32)> = used
+        .iter()
+        .flat_map(|&c| {
+            let t = tets[c as usize];
+            [
+                [t[0], t[1], t[2]],
+                [t[0], t[1], t[3]],
+                [t[0], t[2], t[3]],
+                [t[1], t[2], t[3]],
+            ]
+            .map(|mut f| {
+                f.sort_unstable();
+                (f, c)
+            })
+        })
+        .collect();
+    faces.sort_unstable();
+    faces
+        .windows(2)
+        .filter(|w| w[0].0 == w[1].0)
+        .map(|w| (w[0].1, w[1].1))
+        .collect()
 }

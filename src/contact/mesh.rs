@@ -29,13 +29,26 @@ pub struct ContactMesh {
     /// Edge–edge pairs `(edge a, edge b)`, `a < b`, with their own activation distance,
     /// sorted by pair.
     close_edge_edge: Vec<((u32, u32), f64)>,
-    /// The cell (e.g. simulation element) every vertex moves with affinely, [`NO_CELL`]
-    /// for none; empty when no cells are given (see [`ContactMesh::with_cells`]).
-    cell: Vec<u32>,
+    /// How vertices move with cells; empty when none are given (see
+    /// [`ContactMesh::with_cells`]).
+    cells: Cells,
 }
 
 /// A vertex that moves with no cell.
 pub const NO_CELL: u32 = u32::MAX;
+
+/// The cells (e.g. simulation elements) contact vertices move with: each cell moves by one
+/// affine map that never inverts, and cells sharing a face share it along that face.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Cells {
+    /// The cell of every vertex, [`NO_CELL`] for vertices that move otherwise.
+    pub of_vertex: Vec<u32>,
+    /// Whether every vertex lies inside its cell (non-negative barycentric weights): only
+    /// such vertices share in the two-cell rule of [`ContactMesh::kept_apart`].
+    pub inside: Vec<bool>,
+    /// Pairs of cells that share a face, `(a, b)` in any order.
+    pub face_neighbours: Vec<(u32, u32)>,
+}
 
 fn own_activation(pairs: &[((u32, u32), f64)], pair: (u32, u32)) -> Option<f64> {
     pairs
@@ -139,7 +152,7 @@ impl ContactMesh {
             can_touch: can_touch.iter().flatten().copied().collect(),
             groups,
             close_point_triangle: Vec::new(),
-            cell: Vec::new(),
+            cells: Cells::default(),
             close_edge_edge: Vec::new(),
         })
     }
@@ -168,33 +181,62 @@ impl ContactMesh {
         self
     }
 
-    /// The same surface with a cell per simulation vertex: the vertices of one cell move by
-    /// one affine map that never inverts (e.g. render vertices embedded in one simulation
-    /// element, which the solver keeps at positive volume), so primitives whose vertices all
-    /// lie in one cell cannot cross each other and the solver's crossing check skips them. Contact
-    /// still tracks them: left out of the barrier and CCD, the surface folded inside
-    /// elements until pairs then untracked (those close at rest) crossed (5 of 996 random codes).
-    /// [`NO_CELL`] for vertices that move otherwise.
-    pub fn with_cells(mut self, cell: Vec<u32>) -> Result<Self, ContactError> {
-        if cell.len() != self.vertex_count {
+    /// The same surface with the cells its vertices move with. Two primitives whose vertices
+    /// all lie in one cell, or all inside two cells sharing a face, can never meet (see
+    /// [`ContactMesh::kept_apart`]), so contact leaves such pairs out: on the face they are
+    /// most of the pairs within a few d̂ (neighbours along the finely tessellated surface),
+    /// which the broad phase, CCD and the barrier would otherwise measure at every step.
+    pub fn with_cells(mut self, mut cells: Cells) -> Result<Self, ContactError> {
+        let n = self.vertex_count;
+        if cells.of_vertex.len() != n || cells.inside.len() != n {
             return Err(ContactError::InvalidMesh(format!(
-                "{} cells for {} vertices",
-                cell.len(),
-                self.vertex_count
+                "{} cells and {} inside flags for {n} vertices",
+                cells.of_vertex.len(),
+                cells.inside.len()
             )));
         }
-        self.cell = cell;
+        for pair in &mut cells.face_neighbours {
+            *pair = (pair.0.min(pair.1), pair.0.max(pair.1));
+        }
+        cells.face_neighbours.sort_unstable();
+        cells.face_neighbours.dedup();
+        self.cells = cells;
         Ok(self)
     }
 
-    /// Whether all these vertices move with one cell (and so cannot cross each other).
+    /// Whether the cells keep primitives `a` and `b` (their vertices) from ever meeting:
+    /// each lies in one cell, and either both in the same cell or both inside two cells that
+    /// share a face. A cell moves by one affine map that never inverts, which is one-to-one
+    /// and takes a flat primitive in it to the flat primitive between its moved vertices;
+    /// two positively oriented tetrahedra sharing a face lie on opposite sides of it and
+    /// agree on it, so the map is one-to-one on their union too. Primitives apart at rest
+    /// then stay apart (the solver keeps every element at positive volume, along every
+    /// step). Not so for a primitive spanning two cells (it is the chord between its moved
+    /// vertices, not their cells' image) or for three cells (tetrahedra around an edge can
+    /// wrap past a full turn).
     #[inline]
-    pub fn one_cell(&self, ids: &[u32]) -> bool {
-        if self.cell.is_empty() {
+    pub fn kept_apart(&self, a: &[u32], b: &[u32]) -> bool {
+        let cells = &self.cells;
+        if cells.of_vertex.is_empty() {
             return false;
         }
-        let c = self.cell[ids[0] as usize];
-        c != NO_CELL && ids[1..].iter().all(|&v| self.cell[v as usize] == c)
+        let cell_of = |ids: &[u32]| {
+            let c = cells.of_vertex[ids[0] as usize];
+            ids[1..]
+                .iter()
+                .all(|&v| cells.of_vertex[v as usize] == c)
+                .then_some(c)
+                .filter(|&c| c != NO_CELL)
+        };
+        let (Some(ca), Some(cb)) = (cell_of(a), cell_of(b)) else {
+            return false;
+        };
+        ca == cb
+            || (a.iter().chain(b).all(|&v| cells.inside[v as usize])
+                && cells
+                    .face_neighbours
+                    .binary_search(&(ca.min(cb), ca.max(cb)))
+                    .is_ok())
     }
 
     /// The point–triangle pair's own activation distance (cm), if it is a close pair
@@ -307,17 +349,47 @@ impl ContactMesh {
 mod tests {
     use super::*;
 
-    /// Only vertices that all share one cell count as one cell; vertices with no cell
-    /// never do, and a cell list of the wrong length is refused.
+    /// One cell keeps primitives apart; two do only when they share a face, each primitive
+    /// lies in one of them and every vertex lies inside its cell; vertices with no cell never
+    /// are; cell lists of the wrong length are refused.
     #[test]
-    fn one_cell_needs_every_vertex_in_the_same_cell() {
+    fn cells_keep_apart_one_cell_or_two_sharing_a_face() {
         let rest = vec![0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 1.0, 1.0, 0.0];
         let mesh = ContactMesh::new(&rest, vec![[0, 1, 2], [1, 3, 2]]).unwrap();
-        assert!(!mesh.one_cell(&[0, 1, 2]));
-        assert!(mesh.clone().with_cells(vec![0; 3]).is_err());
-        let celled = mesh.with_cells(vec![7, 7, 7, NO_CELL]).unwrap();
-        assert!(celled.one_cell(&[0, 1, 2]));
-        assert!(!celled.one_cell(&[1, 3, 2]));
-        assert!(!celled.one_cell(&[3, 3]));
+        assert!(!mesh.kept_apart(&[0], &[1, 2]));
+        let cells = |of_vertex: Vec<u32>, inside: Vec<bool>| Cells {
+            of_vertex,
+            inside,
+            face_neighbours: vec![(8, 7), (7, 9)],
+        };
+        assert!(
+            mesh.clone()
+                .with_cells(cells(vec![0; 3], vec![true; 3]))
+                .is_err()
+        );
+        assert!(
+            mesh.clone()
+                .with_cells(cells(vec![0; 4], vec![true; 3]))
+                .is_err()
+        );
+        let celled = mesh
+            .clone()
+            .with_cells(cells(vec![7, 7, 8, NO_CELL], vec![true; 4]))
+            .unwrap();
+        assert!(celled.kept_apart(&[0], &[1]));
+        assert!(celled.kept_apart(&[0, 1], &[2]), "7 and 8 share a face");
+        assert!(
+            !celled.kept_apart(&[0], &[1, 2]),
+            "an edge spanning two cells"
+        );
+        assert!(!celled.kept_apart(&[1], &[3, 2]), "3 moves with no cell");
+        assert!(!celled.kept_apart(&[3], &[3]));
+        let outside = mesh
+            .with_cells(cells(vec![7, 7, 8, 9], vec![true, false, true, true]))
+            .unwrap();
+        assert!(outside.kept_apart(&[0], &[1]), "one cell: inside or not");
+        assert!(!outside.kept_apart(&[0, 1], &[2]), "1 lies outside cell 7");
+        assert!(outside.kept_apart(&[0], &[3]), "7 and 9 share a face");
+        assert!(!outside.kept_apart(&[2], &[3]), "8 and 9 share no face");
     }
 }

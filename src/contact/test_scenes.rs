@@ -62,3 +62,18 @@ pub fn two_sheets(
 pub fn two_sheet_mesh(x: &[f64], faces: &[[u32; 3]]) -> ContactMesh {
     ContactMesh::new(x, faces.to_vec()).expect("valid test mesh")
 }
+
+/// [`two_sheets`] (9 × 9, 0.03 apart) with every third vertex rigid on one of two bones
+/// (groups 1 and 2 touch only the soft group 0, as the face's teeth do): positions, mesh
+/// and groups.
+pub fn striped_sheets() -> (Vec<f64>, ContactMesh, Vec<u16>) {
+    let (x, faces) = two_sheets(9, 0.03, [0.013, -0.021], 0.3, 0.01, 7);
+    let group: Vec<u16> = (0..x.len() / 3).map(|v| (v % 3) as u16).collect();
+    let matrix = [
+        vec![true, true, true],
+        vec![true, false, false],
+        vec![true, false, false],
+    ];
+    let mesh = ContactMesh::with_groups(&x, faces, group.clone(), &matrix).unwrap();
+    (x, mesh, group)
+}

@@ -29,6 +29,7 @@
 //!   rule, with the mean diagonal of `L` over the contact region as the stiffness scale) and
 //!   doubles while the closest pair keeps approaching at a tiny distance.
 
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use nalgebra::DMatrix;
@@ -59,6 +60,14 @@ const VERLET_SLACK: f64 = 1.0;
 /// built before a step that leaves the slack rebuilds it rather than adding the pairs
 /// beyond the list's reach from the relative motion ([`VerletList::near_beyond`]).
 const VERLET_REUSE: f64 = 8.0;
+
+/// Short steps (within the slack) that leave the Verlet list's slack take the pairs beyond
+/// the list from the relative motion ([`VerletList::near_beyond`]) this many times; the next
+/// one rebuilds the list. A rebuild costs about as much as three such steps (interactive
+/// drag: 18 against 5 ms), so renting before buying keeps the cost within twice the best
+/// choice: rebuilding at every such step took 4 rebuilds a drag frame, never rebuilding made
+/// the final preset (many short steps) 1.5× slower.
+const SHORT_STEPS_BEYOND: usize = 3;
 
 /// Advances per pair in the additive CCD; a capped pair keeps the (safe) time it reached.
 const CCD_MAX_ITERATIONS: u64 = 200;
@@ -115,6 +124,13 @@ pub struct ContactStats {
     /// Time in contact-aware linear algebra (the Woodbury LU or the refactorization, the
     /// extra solves).
     pub linear_time: Duration,
+    /// Time moving the bones to the new pose: linearizing the tissue for the carried start
+    /// and certifying each stage's path free of crossings ([`super::staging`]).
+    #[serde(default)]
+    pub staging_time: Duration,
+    /// Time in the after-solve crossing check.
+    #[serde(default)]
+    pub check_time: Duration,
     /// Whether the contact gate skipped the contact machinery for this solve, or why not
     /// ([`super::contact_gate`]).
     #[serde(default)]
@@ -158,6 +174,28 @@ impl ContactModel {
             gate: super::contact_gate::ContactGate::default(),
             stage_limit: super::solver::MAX_POSE_STAGES,
         }
+    }
+}
+
+/// A Verlet list with the trees over the teeth it was built with: the broad phase a contact
+/// solve ended with, kept in the [`super::SimState`] so the next solve starts from it. The
+/// next frame's first linearization (at the same state) reads its active set from the list
+/// instead of a broad phase of its own, and the next solve keeps the list while every
+/// contact vertex, teeth included, stays within [`VERLET_REUSE`]·δ of where it was built.
+/// Any list is sound for any later positions: the pairs beyond it come from the relative
+/// motion since, the teeth's motion to a new pose included ([`VerletList::near_beyond`]).
+#[derive(Clone)]
+pub(crate) struct ContactCache {
+    fixed: Arc<FixedPrimitives>,
+    list: Arc<VerletList>,
+}
+
+impl std::fmt::Debug for ContactCache {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ContactCache")
+            .field("fixed_vertices", &self.fixed.vertex_count())
+            .field("pairs", &self.list.len())
+            .finish()
     }
 }
 
@@ -240,11 +278,16 @@ pub(crate) struct ContactSolve<'a> {
     /// The current step: `W·d`, its candidates, the trial positions and active set.
     dy: Vec<f64>,
     candidates: Candidates,
-    /// The Verlet list the step's candidates are filtered from.
-    verlet: Option<VerletList>,
-    /// Broad-phase trees over the rigid primitives (the teeth), built once: the bones are
-    /// fixed during a solve, so only the soft primitives' trees are rebuilt per step.
-    fixed: FixedPrimitives,
+    /// The Verlet list the step's candidates are filtered from (built at this solve's pose
+    /// or taken over from the last solve's).
+    verlet: Option<ContactCache>,
+    /// Short steps that left the list's slack since it was built (see
+    /// [`SHORT_STEPS_BEYOND`]).
+    short_beyond_since_build: usize,
+    /// Broad-phase trees over the rigid primitives (the teeth) at this solve's pose, built
+    /// once (when a list is first built at it): the bones are fixed during a solve, so only
+    /// the soft primitives' trees are refit per build.
+    fixed: Option<Arc<FixedPrimitives>>,
     y_trial: Vec<f64>,
     trial_collisions: Collisions,
     trial_barrier: f64,
@@ -260,8 +303,9 @@ impl<'a> ContactSolve<'a> {
         x: &[f64],
         bones: &BonePose,
         g_el: &[f64],
+        cache: Option<&ContactCache>,
     ) -> Result<Self, ContactError> {
-        Self::start_with(model, x, bones, g_el, false)
+        Self::start_with(model, x, bones, g_el, false, cache)
     }
 
     /// [`ContactSolve::start`] for a solve: the Verlet list the first line-search step needs
@@ -271,16 +315,19 @@ impl<'a> ContactSolve<'a> {
         x: &[f64],
         bones: &BonePose,
         g_el: &[f64],
+        cache: Option<&ContactCache>,
     ) -> Result<Self, ContactError> {
-        Self::start_with(model, x, bones, g_el, true)
+        Self::start_with(model, x, bones, g_el, true, cache)
     }
 
+    /// `cache`: the broad phase of the solve that left the state (see [`ContactCache`]).
     fn start_with(
         model: &'a ContactModel,
         x: &[f64],
         bones: &BonePose,
         g_el: &[f64],
         with_list: bool,
+        cache: Option<&ContactCache>,
     ) -> Result<Self, ContactError> {
         let m = model.face.vertex_count();
         let mut y = vec![0.0; 3 * m];
@@ -288,13 +335,33 @@ impl<'a> ContactSolve<'a> {
         let dhat = model.face.dhat();
         let t = Instant::now();
         let mesh = model.face.mesh();
-        let fixed = FixedPrimitives::new(mesh, &y)?;
-        let (verlet, close) = if with_list {
-            let list = VerletList::build(mesh, &fixed, &y, dhat, VERLET_SLACK * dhat)?;
-            let close = list.near(mesh, &y, &vec![0.0; 3 * m], dhat)?;
-            (Some(list), close)
-        } else {
-            (None, Candidates::build_with(mesh, &fixed, &y, dhat)?)
+        let still = vec![0.0; 3 * m];
+        let slack = VERLET_SLACK * dhat;
+        let here = |c: &&ContactCache| c.fixed.holds(&y).then(|| c.fixed.clone());
+        let mut fixed = cache.and_then(|c| here(&c));
+        let kept = cache.filter(|c| c.list.moved_within(&y, &still, VERLET_REUSE * slack));
+        let (verlet, close, built) = match kept {
+            // Near where the last solve's list was built (at the same state for the next
+            // frame's linearization): the active set from it (the pairs a broad phase finds).
+            Some(c) => {
+                let close = c.list.near_beyond(mesh, &c.fixed, &y, &still, dhat)?.0;
+                (Some(c.clone()), close, false)
+            }
+            None => {
+                let trees = match fixed.clone() {
+                    Some(trees) => trees,
+                    None => Arc::new(FixedPrimitives::new(mesh, &y)?),
+                };
+                fixed = Some(trees.clone());
+                if with_list {
+                    let list = VerletList::build(mesh, &trees, &y, dhat, slack)?;
+                    let close = list.near(mesh, &y, &still, dhat)?;
+                    let list = Arc::new(list);
+                    (Some(ContactCache { fixed: trees, list }), close, true)
+                } else {
+                    (None, Candidates::build_with(mesh, &trees, &y, dhat)?, false)
+                }
+            }
         };
         let collisions = Collisions::from_candidates(mesh, &close, &y, dhat)?;
         let broad = t.elapsed();
@@ -314,7 +381,7 @@ impl<'a> ContactSolve<'a> {
             broad_phase_time: broad,
             barrier_time: t.elapsed(),
             pose_stages: 1,
-            candidate_builds: usize::from(with_list),
+            candidate_builds: usize::from(built),
             ..ContactStats::default()
         };
         let prev_min_distance2 = collisions.min_distance_squared();
@@ -330,6 +397,7 @@ impl<'a> ContactSolve<'a> {
             dy: vec![0.0; 3 * m],
             candidates: Candidates::default(),
             verlet,
+            short_beyond_since_build: 0,
             fixed,
             y_trial: vec![0.0; 3 * m],
             trial_collisions: Collisions::default(),
@@ -404,25 +472,38 @@ impl<'a> ContactSolve<'a> {
         let slack = VERLET_SLACK * dhat;
         // A step longer than the slack keeps the list and adds the pairs beyond its reach
         // (cheap while the surface has moved smoothly since the list was built) until some
-        // vertex has gone farther than VERLET_REUSE·δ. A short step leaving the slack
-        // rebuilds the list: the steps after it are likely covered again (measured: adding
-        // the pairs beyond at every short step made the final preset 1.5× slower).
+        // vertex has gone farther than VERLET_REUSE·δ. Short steps leaving the slack do so
+        // too, up to SHORT_STEPS_BEYOND of them; the next rebuilds the list (the steps
+        // after it are likely covered again).
         let long_step = cap * longest > slack;
-        let rebuild = self.verlet.as_ref().is_none_or(|list| {
-            let reusable = list.covers(&self.y, &swept)
-                || (long_step && list.moved_within(&self.y, &swept, VERLET_REUSE * slack));
+        let beyond_allowed = long_step || self.short_beyond_since_build < SHORT_STEPS_BEYOND;
+        let rebuild = self.verlet.as_ref().is_none_or(|c| {
+            let reusable = c.list.covers(&self.y, &swept)
+                || (beyond_allowed && c.list.moved_within(&self.y, &swept, VERLET_REUSE * slack));
             !reusable
         });
         if rebuild {
-            self.verlet = Some(VerletList::build(mesh, &self.fixed, &self.y, dhat, slack)?);
+            let fixed = match &self.fixed {
+                Some(trees) => trees.clone(),
+                None => Arc::new(FixedPrimitives::new(mesh, &self.y)?),
+            };
+            self.fixed = Some(fixed.clone());
+            let list = VerletList::build(mesh, &fixed, &self.y, dhat, slack)?;
+            self.verlet = Some(ContactCache {
+                fixed,
+                list: Arc::new(list),
+            });
             self.stats.candidate_builds += 1;
+            self.short_beyond_since_build = 0;
         }
-        let list = self.verlet.as_ref().expect("built above");
+        let ContactCache { fixed, list } = self.verlet.as_ref().expect("built above");
         self.candidates = if list.covers(&self.y, &swept) {
             list.near(mesh, &self.y, &swept, dhat)?
         } else {
-            list.near_beyond(mesh, &self.fixed, &self.y, &swept, dhat)?
-                .0
+            if !long_step {
+                self.short_beyond_since_build += 1;
+            }
+            list.near_beyond(mesh, fixed, &self.y, &swept, dhat)?.0
         };
         self.stats.candidate_pairs += self.candidates.len();
         self.stats.broad_phase_time += t.elapsed();
@@ -510,6 +591,16 @@ impl<'a> ContactSolve<'a> {
         &self.curvature
     }
 
+    /// Broad-phase layouts of the contact surface (of whichever trees this solve holds: the
+    /// layouts group the soft primitives, at any pose).
+    pub(crate) fn layouts(&self) -> &FixedPrimitives {
+        match (&self.fixed, &self.verlet) {
+            (Some(trees), _) => trees,
+            (None, Some(c)) => &c.fixed,
+            (None, None) => unreachable!("a contact solve starts with trees or a list"),
+        }
+    }
+
     /// The contact model this solve runs on.
     pub(crate) fn model(&self) -> &'a ContactModel {
         self.model
@@ -546,12 +637,13 @@ impl<'a> ContactSolve<'a> {
         Ok(fx)
     }
 
-    /// Fills the end-of-solve statistics.
-    pub(crate) fn finish(mut self) -> ContactStats {
+    /// Fills the end-of-solve statistics; the broad phase to keep for the next solve (none
+    /// without a line search).
+    pub(crate) fn finish(mut self) -> (ContactStats, Option<ContactCache>) {
         self.stats.active_pairs = self.collisions.len();
         self.stats.min_distance = self.collisions.min_distance_squared().sqrt();
         self.stats.stiffness = self.potential.stiffness;
-        self.stats
+        (self.stats, self.verlet)
     }
 }
 
@@ -584,6 +676,75 @@ mod tests {
         let contact = stats.contact.unwrap();
         assert!(contact.active_pairs > 0, "the test needs active contact");
         (sim, state, act, bones, contact)
+    }
+
+    /// The next solve starts from the broad phase the last one ended with (kept in the
+    /// state): at the same pose it builds no list while the surface stays near it, the next
+    /// frame's pose change still moves the teeth to a crossing-free result, and a state
+    /// without the cache builds its list as before.
+    #[test]
+    fn next_solve_starts_from_the_last_solves_list() {
+        let model = crate::model::test_support::coarse_face(None);
+        let face = FaceContact::new(model, &FaceContactSettings::default()).unwrap();
+        let field = LipField::new(model, &face, 1.5);
+        let mut sim = model.simulator().unwrap();
+        sim.set_contact(face).unwrap();
+        sim.set_contact_gate(crate::sim::ContactGate::Always);
+        let settings = Quality::Interactive.settings();
+        let pose = |press: f64, jaw_open: f64| MouthPose {
+            press,
+            purse: 0.5,
+            jaw_open,
+            ..MouthPose::default()
+        };
+        let mut state = sim.rest_state();
+        let first = pose(1.0, 0.0);
+        sim.solve(
+            &field.actuations(&first),
+            &first.bones(),
+            &mut state,
+            &settings,
+        )
+        .unwrap();
+        assert!(state.contact_cache.is_some());
+        let solved = state.clone();
+        let next = pose(1.05, 0.0);
+        let stats = sim
+            .solve(
+                &field.actuations(&next),
+                &next.bones(),
+                &mut state,
+                &settings,
+            )
+            .unwrap();
+        let contact = stats.contact.unwrap();
+        assert!(contact.active_pairs > 0, "the test needs active contact");
+        assert_eq!(contact.candidate_builds, 0, "the last solve's list serves");
+        let mut cold = SimState {
+            contact_cache: None,
+            ..solved.clone()
+        };
+        let stats = sim
+            .solve(
+                &field.actuations(&next),
+                &next.bones(),
+                &mut cold,
+                &settings,
+            )
+            .unwrap();
+        assert!(stats.contact.unwrap().candidate_builds > 0);
+        // The jaw moves on: the list built at the last pose serves the carried start and
+        // the solve, and the result is crossing-free (checked by the solve).
+        let opened = pose(1.05, 0.02);
+        let stats = sim
+            .solve(
+                &field.actuations(&opened),
+                &opened.bones(),
+                &mut state,
+                &settings,
+            )
+            .unwrap();
+        assert_eq!(stats.contact.unwrap().new_crossings, 0);
     }
 
     /// The barrier is part of the energy that sensitivities differentiate: at a solved state

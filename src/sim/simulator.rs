@@ -139,6 +139,9 @@ pub struct SimState {
     /// When the contact gate tries contact-free again after refusals
     /// ([`super::contact_gate::Backoff`]).
     pub(crate) gate_backoff: super::contact_gate::Backoff,
+    /// The broad phase the last contact solve ended with, the next one's start
+    /// ([`super::contact::ContactCache`]).
+    pub(crate) contact_cache: Option<super::contact::ContactCache>,
 }
 
 impl SimState {
@@ -356,6 +359,7 @@ impl Simulator {
             bones: BonePose::default(),
             contact_stiffness: None,
             gate_backoff: Default::default(),
+            contact_cache: None,
         }
     }
 

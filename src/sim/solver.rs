@@ -415,14 +415,23 @@ impl Simulator {
         let mut total: Option<SolveStats> = None;
         let mut stages = 0;
         let mut carried_stages = 0;
+        let mut staging = Duration::ZERO;
         loop {
             let mut s = 1.0;
             let here = lerp_pose(&from, bones, reached);
             // Only a pose change moves anything (an unchanged jaw needs no broad phase here).
+            let staging_start = Instant::now();
             let carry = if here == *bones {
                 None
             } else {
-                let carrier = self.carrier(model, actuations, &state.x, &state.steps, &here)?;
+                let carrier = self.carrier(
+                    model,
+                    actuations,
+                    &state.x,
+                    &state.steps,
+                    &here,
+                    state.contact_cache.as_ref(),
+                )?;
                 let gap = carrier.closest_gap();
                 loop {
                     let pose = lerp_pose(&from, bones, s);
@@ -442,6 +451,7 @@ impl Simulator {
                     }
                 }
             };
+            staging += staging_start.elapsed();
             stages += 1;
             if stages > model.stage_limit {
                 return Err(SimError::PoseUnreachable(format!(
@@ -500,14 +510,17 @@ impl Simulator {
         let mut stats = total.expect("at least one stage ran");
         state.contact_stiffness = stats.contact.as_ref().map(|c| c.stiffness);
         // The intersection-free guarantee, checked on what the artist sees.
+        let check_start = Instant::now();
         let mut y = vec![0.0; 3 * model.face.vertex_count()];
         model.face.positions(&state.x, bones, &mut y);
         let crossings = model.face.new_crossings_of_solve(&y);
+        if let Some(c) = stats.contact.as_mut() {
+            c.staging_time = staging;
+            c.check_time = check_start.elapsed();
+            c.new_crossings = crossings.len();
+        }
         stats.wall_time = start.elapsed();
         if !crossings.is_empty() {
-            if let Some(c) = stats.contact.as_mut() {
-                c.new_crossings = crossings.len();
-            }
             return Err(SimError::Intersecting {
                 count: crossings.len(),
                 stats: Box::new(stats),
@@ -542,7 +555,13 @@ impl Simulator {
         let mut g = vec![0.0; dim];
         self.gradient(frame, &state.x, &steps, &mut g);
         let mut contact = match model {
-            Some(m) => match ContactSolve::start_solve(m, &state.x, bones, &g) {
+            Some(m) => match ContactSolve::start_solve(
+                m,
+                &state.x,
+                bones,
+                &g,
+                state.contact_cache.as_ref(),
+            ) {
                 Ok(c) => Some(c),
                 Err(e) => {
                     restore(state, steps, trial_steps);
@@ -688,6 +707,11 @@ impl Simulator {
         if residual <= settings.tolerance {
             termination = Termination::Converged;
         }
+        let contact = contact.map(|c| {
+            let (stats, cache) = c.finish();
+            state.contact_cache = cache;
+            stats
+        });
         let inverted: Vec<usize> = (0..steps.len())
             .filter(|&e| !(steps[e].volume_ratio > 0.0))
             .collect();
@@ -705,7 +729,7 @@ impl Simulator {
             global_time,
             iteration_time,
             near_folding,
-            contact: contact.map(ContactSolve::finish),
+            contact,
         };
         if let Some(&first) = inverted.first() {
             return Err(SimError::Inverted {

@@ -57,13 +57,14 @@ impl Simulator {
         x: &[f64],
         steps: &[LocalStep],
         from: &BonePose,
+        cache: Option<&super::contact::ContactCache>,
     ) -> Result<Carrier<'a>, SimError> {
         let frame = self.frame(actuations, from)?;
         let mut fresh = steps.to_vec();
         self.local_sweep(&frame, x, Some(steps), &mut fresh);
         let mut g = vec![0.0; x.len()];
         self.gradient(&frame, x, &fresh, &mut g);
-        let mut contact = ContactSolve::start(model, x, from, &g)?;
+        let mut contact = ContactSolve::start(model, x, from, &g, cache)?;
         let (inverse, _) = self.step_inverse(&fresh, Some(&mut contact))?;
         let mut y = vec![0.0; 3 * model.face.vertex_count()];
         model.face.positions(x, from, &mut y);
@@ -197,7 +198,7 @@ impl Simulator {
             if !fits {
                 return Ok(None);
             }
-            let hits = self.stage_path_hits(model, x, Some(&dx), a, b, gap)?;
+            let hits = self.stage_path_hits(carrier, x, Some(&dx), b, gap)?;
             if hits.is_empty() {
                 return Ok(Some(dx));
             }
@@ -224,21 +225,20 @@ impl Simulator {
         Ok(None)
     }
 
-    /// Whether the straight move of every contact vertex from (tissue `x`, pose `a`) to
-    /// (tissue `x + dx`, pose `b`) crosses no surface and brings no pair closer than half of
+    /// Whether the straight move of every contact vertex from (tissue `x`, the carrier's
+    /// pose `a`) to (tissue `x + dx`, pose `b`) crosses no surface and brings no pair closer than half of
     /// `gap` (the closest distance at the start, so the barrier a stage starts with stays
     /// moderate; pairs close at rest, which may be closer than that, only must not touch).
     /// `dx = None` keeps the tissue where it is (only the teeth move).
     pub(crate) fn stage_path_free(
         &self,
-        model: &ContactModel,
+        carrier: &Carrier,
         x: &[f64],
         dx: Option<&[f64]>,
-        a: &BonePose,
         b: &BonePose,
         gap: f64,
     ) -> Result<bool, SimError> {
-        Ok(self.stage_path_hits(model, x, dx, a, b, gap)?.is_empty())
+        Ok(self.stage_path_hits(carrier, x, dx, b, gap)?.is_empty())
     }
 
     /// The pairs (contact vertices) that keep the move of [`Simulator::stage_path_free`] from
@@ -247,14 +247,14 @@ impl Simulator {
     /// offending pair rather than the first.
     fn stage_path_hits(
         &self,
-        model: &ContactModel,
+        carrier: &Carrier,
         x: &[f64],
         dx: Option<&[f64]>,
-        a: &BonePose,
         b: &BonePose,
         gap: f64,
     ) -> Result<Vec<[u32; 4]>, SimError> {
         use crate::contact::{Candidates, CcdOptions};
+        let (model, a) = (carrier.contact.model(), &carrier.from);
         let m = 3 * model.face.vertex_count();
         let (mut ya, mut yb) = (vec![0.0; m], vec![0.0; m]);
         model.face.positions(x, a, &mut ya);
@@ -275,7 +275,13 @@ impl Simulator {
             ..CcdOptions::default()
         };
         let mesh = model.face.mesh();
-        let candidates = Candidates::build_swept(mesh, &ya, &dy, opts.min_distance)?;
+        let candidates = Candidates::build_swept_on(
+            mesh,
+            carrier.contact.layouts(),
+            &ya,
+            &dy,
+            opts.min_distance,
+        )?;
         // Pairs already close at rest may be closer than half the gap; they only must not
         // touch (CCD keeps a tenth of their distance).
         let (close, others) = candidates.split_close(mesh);
@@ -305,7 +311,6 @@ impl Simulator {
         gap: f64,
     ) -> Result<Option<StageStart>, SimError> {
         let a = &carrier.from;
-        let model = carrier.contact.model();
         if a == b {
             return Ok(Some(StageStart::TeethOnly));
         }
@@ -323,11 +328,11 @@ impl Simulator {
             if volume < 1.0 {
                 dx.iter_mut().for_each(|v| *v *= CARRY_SHORTENING * volume);
             }
-            if volume > 0.0 && self.stage_path_free(model, x, Some(&dx), a, b, gap)? {
+            if volume > 0.0 && self.stage_path_free(carrier, x, Some(&dx), b, gap)? {
                 return Ok(Some(StageStart::Carried(dx)));
             }
         }
-        if self.stage_path_free(model, x, None, a, b, gap)? {
+        if self.stage_path_free(carrier, x, None, b, gap)? {
             return Ok(Some(StageStart::TeethOnly));
         }
         Ok(None)
@@ -641,7 +646,7 @@ mod tests {
         let mut to = from;
         to.skull.translation = Vector3::new(0.3, -0.2, 0.1);
         let carrier = sim
-            .carrier(model, &a.tensors, &state.x, &state.steps, &from)
+            .carrier(model, &a.tensors, &state.x, &state.steps, &from, None)
             .unwrap();
         let mut dx = sim.carried_displacement(&carrier, &state.x, &to).unwrap();
         let gap = carrier.closest_gap();
@@ -679,7 +684,7 @@ mod tests {
             .expect("certified once the squeezed element moves rigidly");
         assert!(sim.volume_path_limit(&state.x, &fitted) >= 1.0);
         assert!(
-            sim.stage_path_free(model, &state.x, Some(&fitted), &from, &to, gap)
+            sim.stage_path_free(&carrier, &state.x, Some(&fitted), &to, gap)
                 .unwrap()
         );
         let changed = (0..sim.vertex_count())
@@ -823,7 +828,7 @@ mod tests {
                         ..bones
                     };
                     let carrier = sim
-                        .carrier(model, &a.tensors, &state.x, &state.steps, &bones)
+                        .carrier(model, &a.tensors, &state.x, &state.steps, &bones, None)
                         .unwrap();
                     let dx = sim
                         .carried_displacement(&carrier, &state.x, &moved)

@@ -94,13 +94,39 @@ impl Candidates {
         )
     }
 
+    /// [`Candidates::build_swept`] on the moving primitives' layouts of `prepared` (which
+    /// group primitives only: any grouping finds every pair, one from nearby positions finds
+    /// them fast). The fixed primitives may move along this step: their trees are built for
+    /// it. The pose stages' certificates use the layouts of the solve before them.
+    pub fn build_swept_on(
+        mesh: &ContactMesh,
+        prepared: &FixedPrimitives,
+        x: &[f64],
+        dx: &[f64],
+        inflation: f64,
+    ) -> Result<Self, ContactError> {
+        check_swept(mesh, x, dx, inflation)?;
+        Ok(Self::from_layouts(
+            mesh,
+            &prepared.moving,
+            swept_box(x, dx, inflation),
+        ))
+    }
+
     fn from_boxes(mesh: &ContactMesh, x: &[f64], box_of: impl Fn(&[u32]) -> Box3 + Sync) -> Self {
+        Self::from_layouts(mesh, &MovingLayouts::new(mesh, x), box_of)
+    }
+
+    fn from_layouts(
+        mesh: &ContactMesh,
+        moving: &MovingLayouts,
+        box_of: impl Fn(&[u32]) -> Box3 + Sync,
+    ) -> Self {
         // Fixed primitives built from the same boxes: nothing extra to grow by.
         let fixed = FixedTrees::new(mesh, &box_of);
-        let moving = MovingLayouts::new(mesh, x);
         Self::from_split(
             mesh,
-            &moving,
+            moving,
             &box_of,
             &fixed,
             &|a: &Box3, b: &Box3| a.overlaps(b),
@@ -164,7 +190,9 @@ impl Candidates {
         // against open faces.
         let keep_pt = |v: u32, f: u32| {
             let tri = faces[f as usize];
-            !tri.contains(&v) && tri.iter().all(|&t| mesh.can_touch(v, t))
+            !tri.contains(&v)
+                && tri.iter().all(|&t| mesh.can_touch(v, t))
+                && !mesh.kept_apart(&[v], &tri)
         };
         let push_pt = |v: u32, f: u32, out: &mut Vec<PointTriangleCandidate>| {
             if keep_pt(v, f) {
@@ -205,6 +233,7 @@ impl Candidates {
                 && [a0, a1]
                     .iter()
                     .all(|&p| mesh.can_touch(p, b0) && mesh.can_touch(p, b1))
+                && !mesh.kept_apart(&[a0, a1], &[b0, b1])
         };
         let push_ee = |ea: u32, eb: u32, out: &mut Vec<EdgeEdgeCandidate>| {
             if keep_ee(ea, eb) {
@@ -467,6 +496,12 @@ impl FixedPrimitives {
         self.trees.vertices.len()
     }
 
+    /// Whether the fixed vertices are at `x` where the trees were built (so the trees, and
+    /// lists built with them, serve a solve at `x`'s bone pose).
+    pub fn holds(&self, x: &[f64]) -> bool {
+        self.check(x, None).is_ok()
+    }
+
     /// The fixed vertices must be where the trees were built and must not move.
     fn check(&self, x: &[f64], dx: Option<&[f64]>) -> Result<(), ContactError> {
         for (k, &v) in self.trees.vertices.iter().enumerate() {
@@ -578,7 +613,8 @@ impl Candidates {
     /// `listed − dhat` relative to each other: whole subtrees that move together (the
     /// neighbours along the surface) are left out, and so are those whose boxes at `x0` are
     /// farther apart than `dhat` plus their relative motion. The caller applies the exact
-    /// bound to what is left; the fixed vertices must not move.
+    /// bound to what is left. `fixed`'s trees must be those built at `x0`; its vertices may
+    /// have moved since (a list built at one bone pose serves the next).
     pub(crate) fn build_moved(
         mesh: &ContactMesh,
         fixed: &FixedPrimitives,
@@ -590,8 +626,7 @@ impl Candidates {
     ) -> Result<Self, ContactError> {
         check_swept(mesh, x0, start, dhat)?;
         mesh.check_positions(end)?;
-        fixed.check(x0, Some(start))?;
-        fixed.check(x0, Some(end))?;
+        fixed.check(x0, None)?;
         let bound_of = |ids: &[u32]| MovedBound {
             at: Box3::around_iter(ids.iter().map(|&i| Point3::from(vertex(x0, i))), 0.0),
             moved: Box3::around_iter(
@@ -600,7 +635,16 @@ impl Candidates {
                 0.0,
             ),
         };
-        let no_move = Box3::around(&[Point3::origin()], 0.0);
+        // The fixed primitives' trees stay as built at `x0`; their vertices may have moved
+        // since (the bones' next pose), all within one box of displacements.
+        let fixed_moved = Box3::around_iter(
+            fixed
+                .trees
+                .vertices
+                .iter()
+                .flat_map(|&v| [Point3::from(vertex(start, v)), Point3::from(vertex(end, v))]),
+            0.0,
+        );
         let together = listed - dhat - APART_TOLERANCE;
         let may_meet = |at_a: &Box3, moved_a: &Box3, at_b: &Box3, moved_b: &Box3| {
             let (gap, far) = gap_and_reach(at_a, moved_a, at_b, moved_b);
@@ -612,7 +656,7 @@ impl Candidates {
             &bound_of,
             &fixed.trees,
             &|a: &MovedBound, b: &MovedBound| may_meet(&a.at, &a.moved, &b.at, &b.moved),
-            &|a: &MovedBound, b: &Box3| may_meet(&a.at, &a.moved, b, &no_move),
+            &|a: &MovedBound, b: &Box3| may_meet(&a.at, &a.moved, b, &fixed_moved),
         ))
     }
 }

@@ -4,7 +4,7 @@ use super::*;
 use crate::contact::collisions::{Collision, CollisionKind, Collisions};
 use crate::contact::distance::{edge_edge_distance, point_triangle_distance};
 use crate::contact::math::{stencil, vertex};
-use crate::contact::test_scenes::{two_sheet_mesh, two_sheets};
+use crate::contact::test_scenes::{striped_sheets, two_sheet_mesh, two_sheets};
 
 fn brute_force(
     mesh: &ContactMesh,
@@ -172,18 +172,6 @@ fn bad_inputs_are_typed_errors() {
 
 /// Two close sheets whose vertex groups run in stripes: soft (0), rigid on one bone (1),
 /// rigid on another (2); rigid touches only soft. Positions, mesh and the groups.
-fn striped_sheets() -> (Vec<f64>, ContactMesh, Vec<u16>) {
-    let (x, faces) = two_sheets(9, 0.03, [0.013, -0.021], 0.3, 0.01, 7);
-    let group: Vec<u16> = (0..x.len() / 3).map(|v| (v % 3) as u16).collect();
-    let matrix = [
-        vec![true, true, true],
-        vec![true, false, false],
-        vec![true, false, false],
-    ];
-    let mesh = ContactMesh::with_groups(&x, faces, group.clone(), &matrix).unwrap();
-    (x, mesh, group)
-}
-
 /// Soft tissue that touches everything and rigid pieces that touch only soft tissue (the
 /// face's groups) take the broad phase's two-tree path: it must still find every allowed
 /// close pair; pairs close at rest stay candidates with their own activation distance.
@@ -292,4 +280,63 @@ fn fixed_trees_give_the_same_candidates_and_refuse_moved_vertices() {
     let mut moved = x.clone();
     moved[3 * rigid] += 0.01;
     assert!(Candidates::build_with(&mesh, &fixed, &moved, dhat).is_err());
+}
+
+/// Cells (e.g. the simulation elements render vertices are embedded in) leave out exactly
+/// the pairs they keep apart ([`ContactMesh::kept_apart`]); every other close pair is still
+/// found, and vertices with no cell are never left out.
+#[test]
+fn pairs_kept_apart_by_cells_are_left_out_and_no_other() {
+    let (x, faces) = two_sheets(9, 0.03, [0.013, -0.021], 0.3, 0.01, 7);
+    let n = x.len() / 3;
+    let plain = two_sheet_mesh(&x, &faces);
+    // Cells of 3×3 neighbouring vertices of each 9×9 sheet, those along a row sharing
+    // faces; the last vertices belong to no cell.
+    let of_vertex: Vec<u32> = (0..n as u32)
+        .map(|v| {
+            let (sheet, i, j) = (v / 81, (v % 81) / 9, v % 9);
+            if (v as usize) + 7 >= n {
+                crate::contact::mesh::NO_CELL
+            } else {
+                sheet * 9 + (i / 3) * 3 + j / 3
+            }
+        })
+        .collect();
+    let face_neighbours = (0..18u32)
+        .filter(|c| c % 3 != 2)
+        .map(|c| (c, c + 1))
+        .collect();
+    let cells = crate::contact::mesh::Cells {
+        of_vertex,
+        inside: vec![true; n],
+        face_neighbours,
+    };
+    let celled = plain.clone().with_cells(cells).unwrap();
+    let dhat = 0.05;
+    let all = Candidates::build(&plain, &x, dhat).unwrap();
+    let kept = Candidates::build(&celled, &x, dhat).unwrap();
+    let want_pt: Vec<_> = all
+        .point_triangle
+        .iter()
+        .copied()
+        .filter(|p| !celled.kept_apart(&[p.vertex], &plain.faces()[p.face as usize]))
+        .collect();
+    let want_ee: Vec<_> = all
+        .edge_edge
+        .iter()
+        .copied()
+        .filter(|e| {
+            let (a, b) = (
+                plain.edges()[e.edge_a as usize],
+                plain.edges()[e.edge_b as usize],
+            );
+            !celled.kept_apart(&a, &b)
+        })
+        .collect();
+    assert!(want_pt.len() < all.point_triangle.len() && want_ee.len() < all.edge_edge.len());
+    assert!(!want_pt.is_empty() && !want_ee.is_empty());
+    assert_eq!(kept.point_triangle, want_pt);
+    assert_eq!(kept.edge_edge, want_ee);
+    let last = (n - 1) as u32;
+    assert!(!celled.kept_apart(&[last], &[last - 1]));
 }

@@ -5,7 +5,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use super::*;
-use crate::contact::test_scenes::{two_sheet_mesh, two_sheets};
+use crate::contact::test_scenes::{striped_sheets, two_sheet_mesh, two_sheets};
 
 /// Allowed pairs closer than `within` at `y`, by brute force: `(true, vertex, face)` or
 /// `(false, edge a, edge b)`.
@@ -162,6 +162,55 @@ fn near_beyond_holds_every_pair_within_dhat_for_steps_leaving_the_slack() {
     let dy = vec![0.0; y.len()];
     let swept = VerletList::build_swept(&mesh, &fixed, &y, &dy, dhat).unwrap();
     assert!(swept.near_beyond(&mesh, &fixed, &y, &dy, dhat).is_err());
+}
+
+/// A list built at one bone pose serves the next: with the rigid vertices moved since (the
+/// fixed primitives' trees stay as built), the list's pairs and those found beyond it hold
+/// every allowed pair that comes within d̂ along a step, rigid ones included.
+#[test]
+fn near_beyond_holds_every_pair_after_the_rigid_vertices_moved() {
+    let (y, mesh, group) = striped_sheets();
+    let fixed = FixedPrimitives::new(&mesh, &y).unwrap();
+    assert!(fixed.vertex_count() > 0);
+    let (dhat, slack) = (0.02, 0.005);
+    let list = VerletList::build(&mesh, &fixed, &y, dhat, slack).unwrap();
+    let n = y.len() / 3;
+    let mut rng = ChaCha8Rng::seed_from_u64(8);
+    let mut checked = 0;
+    let mut rigid_pairs = 0;
+    for trial in 0..4 {
+        // The rigid vertices of the upper sheet translate down and sideways (their next
+        // pose); the soft ones jitter and move on along the step.
+        let mut at = y.clone();
+        let mut dy = vec![0.0; y.len()];
+        for v in 0..n {
+            let (upper, rigid) = (v >= n / 2, group[v] != 0);
+            for k in 0..3 {
+                let i = 3 * v + k;
+                if rigid {
+                    at[i] += if upper { [0.01, -0.004, -0.02][k] } else { 0.0 };
+                } else {
+                    at[i] += rng.random_range(-0.004..0.004);
+                    dy[i] = if upper && k == 2 { -0.01 } else { 0.0 };
+                }
+            }
+        }
+        assert!(!fixed.holds(&at), "trial {trial}: the rigid vertices moved");
+        let (near, _) = list.near_beyond(&mesh, &fixed, &at, &dy, dhat).unwrap();
+        for s in [0.0, 0.5, 1.0] {
+            let ys: Vec<f64> = at.iter().zip(&dy).map(|(p, d)| p + s * d).collect();
+            for p in close_pairs(&mesh, &ys, dhat) {
+                assert!(contains(&near, &p), "trial {trial}, s = {s}: missed {p:?}");
+                checked += 1;
+                let (Stencil::PointTriangle(ids) | Stencil::EdgeEdge(ids)) = stencil_of(&mesh, &p);
+                rigid_pairs += usize::from(ids.iter().any(|&v| group[v as usize] != 0));
+            }
+        }
+    }
+    assert!(
+        checked > 0 && rigid_pairs > 0,
+        "the scene must bring rigid pairs within d̂"
+    );
 }
 
 /// The swept list's pruned traversal (subtrees left out by the relative-motion bound)
