@@ -444,13 +444,10 @@ impl FaceContact {
         let edges = self.mesh.edges();
         let mut out = self
             .crossing_layouts
-            .overlapping(&self.mesh, y, &|e, f, out| {
+            .overlapping(&self.mesh, y, skip_cells, &|e, f, out| {
                 let [a, b] = edges[e as usize];
                 let t = faces[f as usize];
-                if t.contains(&a)
-                    || t.contains(&b)
-                    || (skip_cells && self.mesh.kept_apart(&[a, b], &t))
-                {
+                if t.contains(&a) || t.contains(&b) {
                     return;
                 }
                 let rigid_pair = [a, b]

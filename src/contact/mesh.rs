@@ -216,27 +216,42 @@ impl ContactMesh {
     /// wrap past a full turn).
     #[inline]
     pub fn kept_apart(&self, a: &[u32], b: &[u32]) -> bool {
+        self.cells_keep_apart(self.cell_of(a), self.cell_of(b))
+    }
+
+    /// The cell a primitive (these vertices) lies in wholly ([`NO_CELL`] for none) and
+    /// whether every vertex lies inside it: what [`ContactMesh::kept_apart`] compares, also
+    /// for whole groups of primitives (the broad phase's tree nodes).
+    #[inline]
+    pub fn cell_of(&self, ids: &[u32]) -> (u32, bool) {
         let cells = &self.cells;
         if cells.of_vertex.is_empty() {
-            return false;
+            return (NO_CELL, false);
         }
-        let cell_of = |ids: &[u32]| {
-            let c = cells.of_vertex[ids[0] as usize];
-            ids[1..]
-                .iter()
-                .all(|&v| cells.of_vertex[v as usize] == c)
-                .then_some(c)
-                .filter(|&c| c != NO_CELL)
-        };
-        let (Some(ca), Some(cb)) = (cell_of(a), cell_of(b)) else {
-            return false;
-        };
-        ca == cb
-            || (a.iter().chain(b).all(|&v| cells.inside[v as usize])
-                && cells
-                    .face_neighbours
-                    .binary_search(&(ca.min(cb), ca.max(cb)))
-                    .is_ok())
+        let c = cells.of_vertex[ids[0] as usize];
+        if ids[1..].iter().any(|&v| cells.of_vertex[v as usize] != c) {
+            return (NO_CELL, false);
+        }
+        (c, ids.iter().all(|&v| cells.inside[v as usize]))
+    }
+
+    /// Whether primitives with these [`ContactMesh::cell_of`] are kept apart.
+    #[inline]
+    pub fn cells_keep_apart(
+        &self,
+        (ca, inside_a): (u32, bool),
+        (cb, inside_b): (u32, bool),
+    ) -> bool {
+        ca != NO_CELL
+            && cb != NO_CELL
+            && (ca == cb
+                || (inside_a
+                    && inside_b
+                    && self
+                        .cells
+                        .face_neighbours
+                        .binary_search(&(ca.min(cb), ca.max(cb)))
+                        .is_ok()))
     }
 
     /// The point–triangle pair's own activation distance (cm), if it is a close pair

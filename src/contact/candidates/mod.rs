@@ -6,7 +6,7 @@ use rayon::prelude::*;
 
 use super::ContactError;
 use super::math::vertex;
-use super::mesh::ContactMesh;
+use super::mesh::{ContactMesh, NO_CELL};
 use crate::geometry::bvh::Box3;
 use tree::{Bound, Fitted, Layout, pairs};
 
@@ -156,20 +156,24 @@ impl Candidates {
         let universal = |v: u32| !split || mesh.touches_all(v);
         let faces = mesh.faces();
         let edges = mesh.edges();
-        let vertex_bounds: Vec<B> = moving
+        let celled = |ids: &[u32]| Celled {
+            bound: bound_of(ids),
+            cell: mesh.cell_of(ids),
+        };
+        let vertex_bounds: Vec<Celled<B>> = moving
             .vertices
             .par_iter()
-            .map(|v| bound_of(std::slice::from_ref(v)))
+            .map(|v| celled(std::slice::from_ref(v)))
             .collect();
-        let face_bounds: Vec<B> = moving
+        let face_bounds: Vec<Celled<B>> = moving
             .faces
             .par_iter()
-            .map(|&f| bound_of(&faces[f as usize]))
+            .map(|&f| celled(&faces[f as usize]))
             .collect();
-        let edge_bounds: Vec<B> = moving
+        let edge_bounds: Vec<Celled<B>> = moving
             .edges
             .par_iter()
-            .map(|&e| bound_of(&edges[e as usize]))
+            .map(|&e| celled(&edges[e as usize]))
             .collect();
         let (vertex_nodes, face_nodes, edge_nodes) = (
             moving.vertex.fit(&vertex_bounds),
@@ -184,15 +188,19 @@ impl Candidates {
         let vertex_tree = fitted(&moving.vertex, &vertex_nodes, &vertex_bounds);
         let face_tree = fitted(&moving.face, &face_nodes, &face_bounds);
         let edge_tree = fitted(&moving.edge, &edge_nodes, &edge_bounds);
-        let flipped = |a: &Box3, b: &B| test_fixed(b, a);
+        // Moving against moving: pairs the cells keep apart are dropped a whole subtree pair
+        // at a time (the same test at nodes and primitives, monotone in both).
+        let test = |a: &Celled<B>, b: &Celled<B>| {
+            !mesh.cells_keep_apart(a.cell, b.cell) && test(&a.bound, &b.bound)
+        };
+        let test_fixed = |a: &Celled<B>, b: &Box3| test_fixed(&a.bound, b);
+        let flipped = |a: &Box3, b: &Celled<B>| test_fixed(b, a);
 
         // Point–triangle: touch-all vertices against moving and fixed faces, fixed vertices
         // against open faces.
         let keep_pt = |v: u32, f: u32| {
             let tri = faces[f as usize];
-            !tri.contains(&v)
-                && tri.iter().all(|&t| mesh.can_touch(v, t))
-                && !mesh.kept_apart(&[v], &tri)
+            !tri.contains(&v) && tri.iter().all(|&t| mesh.can_touch(v, t))
         };
         let push_pt = |v: u32, f: u32, out: &mut Vec<PointTriangleCandidate>| {
             if keep_pt(v, f) {
@@ -200,14 +208,14 @@ impl Candidates {
             }
         };
         let open_face = |f: u32| faces[f as usize].iter().all(|&v| universal(v));
-        let mut point_triangle = pairs(vertex_tree, face_tree, false, test, &|i, j, out| {
+        let mut point_triangle = pairs(vertex_tree, face_tree, false, &test, &|i, j, out| {
             push_pt(moving.vertices[i as usize], moving.faces[j as usize], out)
         });
         point_triangle.extend(pairs(
             vertex_tree,
             fixed.face.fitted(),
             false,
-            test_fixed,
+            &test_fixed,
             &|i, j, out| push_pt(moving.vertices[i as usize], fixed.faces[j as usize], out),
         ));
         point_triangle.extend(pairs(
@@ -233,7 +241,6 @@ impl Candidates {
                 && [a0, a1]
                     .iter()
                     .all(|&p| mesh.can_touch(p, b0) && mesh.can_touch(p, b1))
-                && !mesh.kept_apart(&[a0, a1], &[b0, b1])
         };
         let push_ee = |ea: u32, eb: u32, out: &mut Vec<EdgeEdgeCandidate>| {
             if keep_ee(ea, eb) {
@@ -244,14 +251,14 @@ impl Candidates {
             }
         };
         let open_edge = |e: u32| edges[e as usize].iter().all(|&v| universal(v));
-        let mut edge_edge = pairs(edge_tree, edge_tree, true, test, &|i, j, out| {
+        let mut edge_edge = pairs(edge_tree, edge_tree, true, &test, &|i, j, out| {
             push_ee(moving.edges[i as usize], moving.edges[j as usize], out)
         });
         edge_edge.extend(pairs(
             edge_tree,
             fixed.edge.fitted(),
             false,
-            test_fixed,
+            &test_fixed,
             &|i, j, out| {
                 let ea = moving.edges[i as usize];
                 if open_edge(ea) {
@@ -282,43 +289,54 @@ pub(crate) struct EdgeFaceLayouts {
 }
 
 impl EdgeFaceLayouts {
-    /// Layouts from the edges' and faces' centres at `x`.
+    /// Layouts from the edges' and faces' centres at `x`, grouped by cell.
     pub(crate) fn new(mesh: &ContactMesh, x: &[f64]) -> Self {
-        let centre = |ids: &[u32]| centre(x, ids);
-        let edge: Vec<Point3<f64>> = mesh.edges().iter().map(|e| centre(e)).collect();
-        let face: Vec<Point3<f64>> = mesh.faces().iter().map(|f| centre(f)).collect();
+        let layout = |primitives: &mut dyn Iterator<Item = &[u32]>| {
+            let (centres, groups): (Vec<_>, Vec<_>) = primitives
+                .map(|ids| (centre(x, ids), mesh.cell_of(ids).0))
+                .unzip();
+            Layout::grouped(&centres, &groups)
+        };
         Self {
-            edge: Layout::new(&edge),
-            face: Layout::new(&face),
+            edge: layout(&mut mesh.edges().iter().map(|e| &e[..])),
+            face: layout(&mut mesh.faces().iter().map(|f| &f[..])),
         }
     }
 
     /// Every `(edge, face)` whose exact boxes at `y` overlap, handed to `emit` (which keeps
-    /// what it wants); the output's order depends on the traversal only.
+    /// what it wants); with `skip_kept_apart`, not the pairs the cells keep apart
+    /// ([`ContactMesh::kept_apart`]: whole subtrees at once). The output's order depends on
+    /// the traversal only.
     pub(crate) fn overlapping<T: Send>(
         &self,
         mesh: &ContactMesh,
         y: &[f64],
+        skip_kept_apart: bool,
         emit: &(impl Fn(u32, u32, &mut Vec<T>) + Sync),
     ) -> Vec<T> {
-        let box_of =
-            |ids: &[u32]| Box3::around_iter(ids.iter().map(|&i| Point3::from(vertex(y, i))), 0.0);
-        let edge_boxes: Vec<Box3> = mesh.edges().par_iter().map(|e| box_of(e)).collect();
-        let face_boxes: Vec<Box3> = mesh.faces().par_iter().map(|f| box_of(f)).collect();
-        let (edge_nodes, face_nodes) = (self.edge.fit(&edge_boxes), self.face.fit(&face_boxes));
+        let bound_of = |ids: &[u32]| Celled {
+            bound: Box3::around_iter(ids.iter().map(|&i| Point3::from(vertex(y, i))), 0.0),
+            cell: mesh.cell_of(ids),
+        };
+        let edge_bounds: Vec<_> = mesh.edges().par_iter().map(|e| bound_of(e)).collect();
+        let face_bounds: Vec<_> = mesh.faces().par_iter().map(|f| bound_of(f)).collect();
+        let (edge_nodes, face_nodes) = (self.edge.fit(&edge_bounds), self.face.fit(&face_bounds));
         pairs(
             Fitted {
                 layout: &self.edge,
                 nodes: &edge_nodes,
-                items: &edge_boxes,
+                items: &edge_bounds,
             },
             Fitted {
                 layout: &self.face,
                 nodes: &face_nodes,
-                items: &face_boxes,
+                items: &face_bounds,
             },
             false,
-            &|a: &Box3, b: &Box3| a.overlaps(b),
+            &|a: &Celled<Box3>, b: &Celled<Box3>| {
+                !(skip_kept_apart && mesh.cells_keep_apart(a.cell, b.cell))
+                    && a.bound.overlaps(&b.bound)
+            },
             emit,
         )
     }
@@ -355,21 +373,17 @@ impl MovingLayouts {
             .copied()
             .filter(|&v| universal(v))
             .collect();
-        let centre = |ids: &[u32]| centre(x, ids);
+        // Grouped by cell, so that subtrees lie in one cell (see `Celled`).
+        let layout = |primitives: &mut dyn Iterator<Item = &[u32]>| {
+            let (centres, groups): (Vec<_>, Vec<_>) = primitives
+                .map(|ids| (centre(x, ids), mesh.cell_of(ids).0))
+                .unzip();
+            Layout::grouped(&centres, &groups)
+        };
         Self {
-            vertex: Layout::new(&vertices.iter().map(|&v| centre(&[v])).collect::<Vec<_>>()),
-            face: Layout::new(
-                &faces
-                    .iter()
-                    .map(|&f| centre(&mesh.faces()[f as usize]))
-                    .collect::<Vec<_>>(),
-            ),
-            edge: Layout::new(
-                &edges
-                    .iter()
-                    .map(|&e| centre(&mesh.edges()[e as usize]))
-                    .collect::<Vec<_>>(),
-            ),
+            vertex: layout(&mut vertices.iter().map(std::slice::from_ref)),
+            face: layout(&mut faces.iter().map(|&f| &mesh.faces()[f as usize][..])),
+            edge: layout(&mut edges.iter().map(|&e| &mesh.edges()[e as usize][..])),
             vertices,
             faces,
             edges,
@@ -658,6 +672,35 @@ impl Candidates {
             &|a: &MovedBound, b: &MovedBound| may_meet(&a.at, &a.moved, &b.at, &b.moved),
             &|a: &MovedBound, b: &Box3| may_meet(&a.at, &a.moved, b, &fixed_moved),
         ))
+    }
+}
+
+/// A moving primitive's (or node's) bound with the cell it lies in wholly
+/// ([`ContactMesh::cell_of`]; a node's: its primitives' common cell, if any).
+#[derive(Clone, Copy)]
+struct Celled<B> {
+    bound: B,
+    cell: (u32, bool),
+}
+
+impl<B: Bound> Bound for Celled<B> {
+    #[inline]
+    fn union(&self, other: &Self) -> Self {
+        let (ca, ia) = self.cell;
+        let (cb, ib) = other.cell;
+        Self {
+            bound: self.bound.union(&other.bound),
+            cell: if ca == cb {
+                (ca, ia && ib)
+            } else {
+                (NO_CELL, false)
+            },
+        }
+    }
+
+    #[inline]
+    fn extent(&self) -> f64 {
+        self.bound.extent()
     }
 }
 
