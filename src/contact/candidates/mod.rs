@@ -289,13 +289,10 @@ pub(crate) struct EdgeFaceLayouts {
 }
 
 impl EdgeFaceLayouts {
-    /// Layouts from the edges' and faces' centres at `x`, grouped by cell.
+    /// Layouts from the edges' and faces' centres at `x`.
     pub(crate) fn new(mesh: &ContactMesh, x: &[f64]) -> Self {
         let layout = |primitives: &mut dyn Iterator<Item = &[u32]>| {
-            let (centres, groups): (Vec<_>, Vec<_>) = primitives
-                .map(|ids| (centre(x, ids), mesh.cell_of(ids).0))
-                .unzip();
-            Layout::grouped(&centres, &groups)
+            Layout::new(&primitives.map(|ids| centre(x, ids)).collect::<Vec<_>>())
         };
         Self {
             edge: layout(&mut mesh.edges().iter().map(|e| &e[..])),
@@ -373,12 +370,8 @@ impl MovingLayouts {
             .copied()
             .filter(|&v| universal(v))
             .collect();
-        // Grouped by cell, so that subtrees lie in one cell (see `Celled`).
         let layout = |primitives: &mut dyn Iterator<Item = &[u32]>| {
-            let (centres, groups): (Vec<_>, Vec<_>) = primitives
-                .map(|ids| (centre(x, ids), mesh.cell_of(ids).0))
-                .unzip();
-            Layout::grouped(&centres, &groups)
+            Layout::new(&primitives.map(|ids| centre(x, ids)).collect::<Vec<_>>())
         };
         Self {
             vertex: layout(&mut vertices.iter().map(std::slice::from_ref)),

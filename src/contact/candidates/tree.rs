@@ -71,38 +71,10 @@ impl Layout {
     /// A layout over primitives with these centres: split at the median along the longest
     /// axis of the centres' box (ties by index: deterministic) down to [`LEAF_SIZE`].
     pub(crate) fn new(centres: &[Point3<f64>]) -> Self {
-        Self::split_by(centres, centres)
-    }
-
-    /// A layout that keeps groups together (e.g. the primitives of one simulation cell, so
-    /// that whole subtrees lie in one cell and the traversal can drop pairs of them at
-    /// once): splits go by the groups' mean centres until a node holds one group, then by
-    /// the primitives' own centres. `NO_GROUP` primitives are their own group.
-    pub(crate) fn grouped(centres: &[Point3<f64>], groups: &[u32]) -> Self {
-        debug_assert_eq!(centres.len(), groups.len());
-        let mut order: Vec<usize> = (0..groups.len()).collect();
-        order.sort_unstable_by_key(|&i| groups[i]);
-        let mut keys = centres.to_vec();
-        for run in order.chunk_by(|&i, &j| groups[i] == groups[j]) {
-            if groups[run[0]] == NO_GROUP {
-                continue;
-            }
-            let mean = run
-                .iter()
-                .fold(nalgebra::Vector3::zeros(), |m, &i| m + centres[i].coords)
-                / run.len() as f64;
-            for &i in run {
-                keys[i] = Point3::from(mean);
-            }
-        }
-        Self::split_by(&keys, centres)
-    }
-
-    fn split_by(keys: &[Point3<f64>], centres: &[Point3<f64>]) -> Self {
         let mut items: Vec<u32> = (0..centres.len() as u32).collect();
         let mut nodes = Vec::with_capacity(2 * centres.len() / LEAF_SIZE + 1);
         if !items.is_empty() {
-            split(keys, centres, &mut items, 0, &mut nodes);
+            split(centres, &mut items, 0, &mut nodes);
         }
         Self { nodes, items }
     }
@@ -129,18 +101,7 @@ impl Layout {
     }
 }
 
-/// No group ([`Layout::grouped`]): a primitive in no single cell.
-pub(crate) const NO_GROUP: u32 = crate::contact::mesh::NO_CELL;
-
-/// Splits `items` at the median of `keys` along their longest axis; once the keys of a node
-/// coincide (one group), by `centres`.
-fn split(
-    keys: &[Point3<f64>],
-    centres: &[Point3<f64>],
-    items: &mut [u32],
-    offset: usize,
-    nodes: &mut Vec<Node>,
-) {
+fn split(centres: &[Point3<f64>], items: &mut [u32], offset: usize, nodes: &mut Vec<Node>) {
     let at = nodes.len();
     if items.len() <= LEAF_SIZE {
         nodes.push(Node {
@@ -153,30 +114,22 @@ fn split(
         first_or_right: 0,
         count: 0,
     });
-    let extent = |keys: &[Point3<f64>]| {
-        let first = keys[items[0] as usize];
-        items[1..].iter().fold((first, first), |(lo, hi), &i| {
-            let c = keys[i as usize];
-            (lo.inf(&c), hi.sup(&c))
-        })
-    };
-    let (mut lo, mut hi) = extent(keys);
-    let mut keys = keys;
-    if lo == hi {
-        keys = centres;
-        (lo, hi) = extent(centres);
-    }
+    let first = centres[items[0] as usize];
+    let (lo, hi) = items[1..].iter().fold((first, first), |(lo, hi), &i| {
+        let c = centres[i as usize];
+        (lo.inf(&c), hi.sup(&c))
+    });
     let axis = (hi - lo).imax();
     let mid = items.len() / 2;
     items.select_nth_unstable_by(mid, |&a, &b| {
-        keys[a as usize][axis]
-            .total_cmp(&keys[b as usize][axis])
+        centres[a as usize][axis]
+            .total_cmp(&centres[b as usize][axis])
             .then(a.cmp(&b))
     });
     let (left, right) = items.split_at_mut(mid);
-    split(keys, centres, left, offset, nodes);
+    split(centres, left, offset, nodes);
     nodes[at].first_or_right = nodes.len() as u32;
-    split(keys, centres, right, offset + mid, nodes);
+    split(centres, right, offset + mid, nodes);
 }
 
 /// A layout with its bounds: per node and per primitive.
@@ -339,15 +292,7 @@ mod tests {
     fn pairs_match_brute_force_before_and_after_refit() {
         let a = random_boxes(700, 1);
         let b = random_boxes(300, 2);
-        // `b` grouped (groups of ~10 in index order, a few in none): any grouping finds
-        // every pair.
-        let groups: Vec<u32> = (0..b.len() as u32)
-            .map(|i| if i % 7 == 0 { NO_GROUP } else { i / 10 })
-            .collect();
-        let (la, lb) = (
-            Layout::new(&centres(&a)),
-            Layout::grouped(&centres(&b), &groups),
-        );
+        let (la, lb) = (Layout::new(&centres(&a)), Layout::new(&centres(&b)));
         let test = |p: &Box3, q: &Box3| p.overlaps(q);
         let emit = |i: u32, j: u32, out: &mut Vec<(u32, u32)>| out.push((i, j));
         // The same layouts over boxes shuffled around: a poor but valid tree.

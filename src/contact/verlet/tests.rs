@@ -183,8 +183,8 @@ fn near_beyond_holds_every_pair_after_the_rigid_vertices_moved() {
         // pose); the soft ones jitter and move on along the step.
         let mut at = y.clone();
         let mut dy = vec![0.0; y.len()];
-        for v in 0..n {
-            let (upper, rigid) = (v >= n / 2, group[v] != 0);
+        for (v, &g) in group.iter().enumerate() {
+            let (upper, rigid) = (v >= n / 2, g != 0);
             for k in 0..3 {
                 let i = 3 * v + k;
                 if rigid {
