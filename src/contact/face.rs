@@ -21,10 +21,11 @@
 //! is zero at rest, and CCD tracks them like every other pair. Left out of contact
 //! altogether, as they were, a lip edge slid through the jaw-bound mouth lining it rests
 //! against (3 of ~1,000 random codes ended with crossings the after-solve check caught).
-//! The solver's after-solve crossing check ([`FaceContact::new_crossings_of_solve`]) skips
-//! pairs whose vertices are all embedded in one simulation element
-//! ([`ContactMesh::with_cells`]): they move by that element's affine map, which the solver
-//! never lets invert, so they cannot cross.
+//! Pairs of primitives each wholly inside one simulation element, the same one or two
+//! sharing a face, are left out of contact and of the solver's after-solve crossing check
+//! ([`FaceContact::new_crossings_of_solve`]; [`ContactMesh::kept_apart`]): they move by
+//! one-to-one maps while the solver keeps the elements at positive volume, so they can never
+//! meet.
 //! Edge–triangle crossings present at rest (the rig's own, between pieces the importer does
 //! not repair) are recorded and left out of the after-solve check, which reports only new
 //! ones.
@@ -430,14 +431,14 @@ impl FaceContact {
 
     /// [`FaceContact::new_crossings`] for positions `y` of a solver state, `y` =
     /// [`FaceContact::positions`] of tissue positions whose elements are all non-inverted:
-    /// pairs whose vertices are all embedded in one element move by its affine map and
-    /// cannot cross, so they are skipped (not so for positions from elsewhere, e.g. a rig's
-    /// targets or a displacement field, which may fold inside an element).
+    /// pairs the cells keep apart ([`ContactMesh::kept_apart`]) cannot cross, so they are
+    /// skipped (not so for positions from elsewhere, e.g. a rig's targets or a displacement
+    /// field, which may fold inside an element).
     pub fn new_crossings_of_solve(&self, y: &[f64]) -> Vec<(u32, u32)> {
         self.crossings(y, true)
     }
 
-    /// The new crossings at `y`; `skip_cells`: leave out pairs within one cell (see
+    /// The new crossings at `y`; `skip_cells`: leave out the pairs the cells keep apart (see
     /// [`FaceContact::new_crossings_of_solve`]).
     fn crossings(&self, y: &[f64], skip_cells: bool) -> Vec<(u32, u32)> {
         let faces = self.mesh.faces();

@@ -23,8 +23,9 @@
 //!   over them caps the step so no pair ever reaches distance 0, and the barrier of every
 //!   trial is evaluated over the same pairs (so no pair that comes within d̂ during the step
 //!   is missed). The broad-phase trees ([`crate::contact::FixedPrimitives`]) are prepared
-//!   once per solve: the teeth's (the bones are fixed during it) and the layout of the soft
-//!   primitives' trees, whose boxes are refit at every build.
+//!   once per pose: the teeth's (the bones are fixed during a solve) and the layout of the
+//!   soft primitives' trees, whose boxes are refit at every build. The list a solve ends
+//!   with is the next one's start ([`ContactCache`], kept in the state).
 //! - **Stiffness**: κ starts where the barrier gradient balances the elastic one (ipc-toolkit's
 //!   rule, with the mean diagonal of `L` over the contact region as the stiffness scale) and
 //!   doubles while the closest pair keeps approaching at a tiny distance.
@@ -199,6 +200,19 @@ impl std::fmt::Debug for ContactCache {
     }
 }
 
+/// The trees over the teeth at `y`'s pose: `fixed` if built already, else built now (and
+/// kept there).
+fn trees_here(
+    fixed: &mut Option<Arc<FixedPrimitives>>,
+    mesh: &crate::contact::ContactMesh,
+    y: &[f64],
+) -> Result<Arc<FixedPrimitives>, ContactError> {
+    if fixed.is_none() {
+        *fixed = Some(Arc::new(FixedPrimitives::new(mesh, y)?));
+    }
+    Ok(fixed.clone().expect("set above"))
+}
+
 /// `K = Wᵀ·H·W` over the simulation vertices the blocks touch: dense `3a × 3a`.
 struct PulledBackHessian {
     vertices: Vec<u32>,
@@ -337,8 +351,7 @@ impl<'a> ContactSolve<'a> {
         let mesh = model.face.mesh();
         let still = vec![0.0; 3 * m];
         let slack = VERLET_SLACK * dhat;
-        let here = |c: &&ContactCache| c.fixed.holds(&y).then(|| c.fixed.clone());
-        let mut fixed = cache.and_then(|c| here(&c));
+        let mut fixed = cache.filter(|c| c.fixed.holds(&y)).map(|c| c.fixed.clone());
         let kept = cache.filter(|c| c.list.moved_within(&y, &still, VERLET_REUSE * slack));
         let (verlet, close, built) = match kept {
             // Near where the last solve's list was built (at the same state for the next
@@ -348,11 +361,7 @@ impl<'a> ContactSolve<'a> {
                 (Some(c.clone()), close, false)
             }
             None => {
-                let trees = match fixed.clone() {
-                    Some(trees) => trees,
-                    None => Arc::new(FixedPrimitives::new(mesh, &y)?),
-                };
-                fixed = Some(trees.clone());
+                let trees = trees_here(&mut fixed, mesh, &y)?;
                 if with_list {
                     let list = VerletList::build(mesh, &trees, &y, dhat, slack)?;
                     let close = list.near(mesh, &y, &still, dhat)?;
@@ -483,11 +492,7 @@ impl<'a> ContactSolve<'a> {
             !reusable
         });
         if rebuild {
-            let fixed = match &self.fixed {
-                Some(trees) => trees.clone(),
-                None => Arc::new(FixedPrimitives::new(mesh, &self.y)?),
-            };
-            self.fixed = Some(fixed.clone());
+            let fixed = trees_here(&mut self.fixed, mesh, &self.y)?;
             let list = VerletList::build(mesh, &fixed, &self.y, dhat, slack)?;
             self.verlet = Some(ContactCache {
                 fixed,
