@@ -291,12 +291,9 @@ pub(crate) struct EdgeFaceLayouts {
 impl EdgeFaceLayouts {
     /// Layouts from the edges' and faces' centres at `x`.
     pub(crate) fn new(mesh: &ContactMesh, x: &[f64]) -> Self {
-        let layout = |primitives: &mut dyn Iterator<Item = &[u32]>| {
-            Layout::new(&primitives.map(|ids| centre(x, ids)).collect::<Vec<_>>())
-        };
         Self {
-            edge: layout(&mut mesh.edges().iter().map(|e| &e[..])),
-            face: layout(&mut mesh.faces().iter().map(|f| &f[..])),
+            edge: layout_of(x, mesh.edges().iter().map(|e| &e[..])),
+            face: layout_of(x, mesh.faces().iter().map(|f| &f[..])),
         }
     }
 
@@ -370,13 +367,10 @@ impl MovingLayouts {
             .copied()
             .filter(|&v| universal(v))
             .collect();
-        let layout = |primitives: &mut dyn Iterator<Item = &[u32]>| {
-            Layout::new(&primitives.map(|ids| centre(x, ids)).collect::<Vec<_>>())
-        };
         Self {
-            vertex: layout(&mut vertices.iter().map(std::slice::from_ref)),
-            face: layout(&mut faces.iter().map(|&f| &mesh.faces()[f as usize][..])),
-            edge: layout(&mut edges.iter().map(|&e| &mesh.edges()[e as usize][..])),
+            vertex: layout_of(x, vertices.iter().map(std::slice::from_ref)),
+            face: layout_of(x, faces.iter().map(|&f| &mesh.faces()[f as usize][..])),
+            edge: layout_of(x, edges.iter().map(|&e| &mesh.edges()[e as usize][..])),
             vertices,
             faces,
             edges,
@@ -777,6 +771,11 @@ fn gap_and_reach(at_a: &Box3, moved_a: &Box3, at_b: &Box3, moved_b: &Box3) -> (f
 }
 
 /// The centre of a primitive (its vertex ids) at `x`: what a tree layout sorts by.
+/// A tree layout over primitives (their vertex lists) from their centres at `x`.
+fn layout_of<'a>(x: &[f64], primitives: impl Iterator<Item = &'a [u32]>) -> Layout {
+    Layout::new(&primitives.map(|ids| centre(x, ids)).collect::<Vec<_>>())
+}
+
 fn centre(x: &[f64], ids: &[u32]) -> Point3<f64> {
     Point3::from(ids.iter().map(|&i| vertex(x, i)).sum::<super::math::Vec3>() / ids.len() as f64)
 }
