@@ -259,26 +259,19 @@ impl FaceContact {
             })
             .collect();
         let mesh = mesh.with_close_pairs(close_pt, close_ee);
+        let (of_vertex, inside): (Vec<u32>, Vec<bool>) = render_vertices
+            .iter()
+            .map(|&r| match render.bindings[r as usize] {
+                Binding::Embedded { element, weights } => {
+                    (element, weights.iter().all(|&w| w >= 0.0))
+                }
+                _ => (NO_CELL, false),
+            })
+            .unzip();
         let cells = Cells {
-            of_vertex: render_vertices
-                .iter()
-                .map(|&r| match render.bindings[r as usize] {
-                    Binding::Embedded { element, .. } => element,
-                    _ => NO_CELL,
-                })
-                .collect(),
-            inside: render_vertices
-                .iter()
-                .map(|&r| match render.bindings[r as usize] {
-                    Binding::Embedded { weights, .. } => weights.iter().all(|&w| w >= 0.0),
-                    _ => false,
-                })
-                .collect(),
-            face_neighbours: Vec::new(),
-        };
-        let cells = Cells {
-            face_neighbours: face_neighbours(&model.mesh.tets, &cells.of_vertex),
-            ..cells
+            face_neighbours: face_neighbours(&model.mesh.tets, &of_vertex),
+            of_vertex,
+            inside,
         };
         let mesh = mesh.with_cells(cells)?;
         let mut region_sim_vertices: Vec<u32> = bindings
