@@ -702,54 +702,28 @@ mod tests {
             jaw_open,
             ..MouthPose::default()
         };
+        let solve = |m: &MouthPose, state: &mut SimState| {
+            sim.solve(&field.actuations(m), &m.bones(), state, &settings)
+                .unwrap()
+                .contact
+                .unwrap()
+        };
         let mut state = sim.rest_state();
-        let first = pose(1.0, 0.0);
-        sim.solve(
-            &field.actuations(&first),
-            &first.bones(),
-            &mut state,
-            &settings,
-        )
-        .unwrap();
+        solve(&pose(1.0, 0.0), &mut state);
         assert!(state.contact_cache.is_some());
         let solved = state.clone();
         let next = pose(1.05, 0.0);
-        let stats = sim
-            .solve(
-                &field.actuations(&next),
-                &next.bones(),
-                &mut state,
-                &settings,
-            )
-            .unwrap();
-        let contact = stats.contact.unwrap();
+        let contact = solve(&next, &mut state);
         assert!(contact.active_pairs > 0, "the test needs active contact");
         assert_eq!(contact.candidate_builds, 0, "the last solve's list serves");
         let mut cold = SimState {
             contact_cache: None,
-            ..solved.clone()
+            ..solved
         };
-        let stats = sim
-            .solve(
-                &field.actuations(&next),
-                &next.bones(),
-                &mut cold,
-                &settings,
-            )
-            .unwrap();
-        assert!(stats.contact.unwrap().candidate_builds > 0);
+        assert!(solve(&next, &mut cold).candidate_builds > 0);
         // The jaw moves on: the list built at the last pose serves the carried start and
         // the solve, and the result is crossing-free (checked by the solve).
-        let opened = pose(1.05, 0.02);
-        let stats = sim
-            .solve(
-                &field.actuations(&opened),
-                &opened.bones(),
-                &mut state,
-                &settings,
-            )
-            .unwrap();
-        assert_eq!(stats.contact.unwrap().new_crossings, 0);
+        assert_eq!(solve(&pose(1.05, 0.02), &mut state).new_crossings, 0);
     }
 
     /// The barrier is part of the energy that sensitivities differentiate: at a solved state
