@@ -226,9 +226,10 @@ impl Simulator {
     }
 
     /// Whether the straight move of every contact vertex from (tissue `x`, the carrier's
-    /// pose `a`) to (tissue `x + dx`, pose `b`) crosses no surface and brings no pair closer than half of
-    /// `gap` (the closest distance at the start, so the barrier a stage starts with stays
-    /// moderate; pairs close at rest, which may be closer than that, only must not touch).
+    /// pose `a`) to (tissue `x + dx`, pose `b`) crosses no surface and brings no pair closer
+    /// than half of `gap` (the closest distance at the start, so the barrier a stage starts
+    /// with stays moderate; pairs close at rest, which may be closer than that, only must not
+    /// touch).
     /// `dx = None` keeps the tissue where it is (only the teeth move).
     pub(crate) fn stage_path_free(
         &self,
