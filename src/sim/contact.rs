@@ -154,6 +154,9 @@ pub(crate) struct ContactModel {
     /// Most bone-pose stages a solve may take ([`super::solver::MAX_POSE_STAGES`]; tests
     /// lower it).
     pub(crate) stage_limit: usize,
+    /// Shortest stage a warm start tries ([`super::solver::SHORTEST_WARM_STAGE`]; tests
+    /// raise it).
+    pub(crate) shortest_warm_stage: f64,
 }
 
 impl ContactModel {
@@ -174,6 +177,7 @@ impl ContactModel {
             step: ContactStep::default(),
             gate: super::contact_gate::ContactGate::default(),
             stage_limit: super::solver::MAX_POSE_STAGES,
+            shortest_warm_stage: super::solver::SHORTEST_WARM_STAGE,
         }
     }
 }

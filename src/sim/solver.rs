@@ -255,6 +255,16 @@ impl History {
 /// Most bone-pose stages a contact solve may split a pose change into.
 pub(crate) const MAX_POSE_STAGES: usize = 64;
 
+/// Shortest pose stage (fraction of the whole swing) a solve from rest tries before the pose
+/// is unreachable.
+const SHORTEST_STAGE: f64 = 1e-9;
+
+/// Shortest pose stage a warm-started solve tries before it gives the warm path up and the
+/// frame is solved from rest. Pressed pairs can stall the stages of a warm start: seed 118's
+/// frame 12 of the 1,008-code run crept through ~10⁻⁴ of its swing per stage after 40–55 s
+/// of bisection each (2,039 s for the frame); with this floor it is solved from rest (134 s).
+pub(crate) const SHORTEST_WARM_STAGE: f64 = 1e-3;
+
 /// Iteration cap of an intermediate pose stage (the last one gets the preset's).
 const STAGE_ITERATIONS: usize = 10;
 
@@ -411,6 +421,13 @@ impl Simulator {
         // with the tissue carried along with the bones when that is certified too (see
         // `staging`), solving after each.
         let from = state.bones;
+        // From a warm start, a stage shorter than this (of the whole swing) gives the warm
+        // path up: the frame is solved from rest instead (see `Simulator::solve`).
+        let shortest = if self.at_rest(state) {
+            SHORTEST_STAGE
+        } else {
+            model.shortest_warm_stage
+        };
         let mut reached = 0.0;
         let mut total: Option<SolveStats> = None;
         let mut stages = 0;
@@ -442,7 +459,7 @@ impl Simulator {
                     // tenth of every gap), so jumping to it made more, shorter stages
                     // (measured: a random code then exceeded the stage limit).
                     s = reached + 0.5 * (s - reached);
-                    if s - reached < 1e-9 {
+                    if s - reached < shortest {
                         return Err(SimError::PoseUnreachable(
                             "the teeth cannot move toward the new pose without crossing the \
                              lips (the tissue is pinned against them)"

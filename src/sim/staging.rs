@@ -519,6 +519,7 @@ pub(crate) enum StageStart {
 mod tests {
     use nalgebra::Vector3;
 
+    use super::super::solver::{MAX_POSE_STAGES, SHORTEST_WARM_STAGE};
     use super::{Bone, Clusters};
     use crate::bench::contact_sweep::random_codes;
     use crate::contact::face::{FaceContact, FaceContactSettings};
@@ -740,22 +741,28 @@ mod tests {
         });
     }
 
-    /// A frame whose pose cannot be reached from the last frame within the stage limit is
-    /// solved from rest (and says so); from rest itself the error is returned. Seed 127's
-    /// codes 0–7 with the limit lowered to one stage: frame 7 needs two from frame 6 (above)
-    /// and one from rest; with no stage allowed, a frame from rest fails as unreachable.
+    /// A frame whose pose cannot be reached from the last frame within the stage limit, or
+    /// only through a stage shorter than the warm floor, is solved from rest (and says so);
+    /// from rest itself the error is returned. Seed 127's codes 0–7: frame 7 needs two
+    /// stages from frame 6 (above) and one from rest, so with the limit lowered to one stage,
+    /// or with stages shorter than 0.6 of the swing refused from a warm start (its second
+    /// try is half the swing), it is solved from rest; with no stage allowed, a frame from
+    /// rest fails as unreachable.
     #[test]
     fn unreachable_pose_is_solved_from_rest() {
         let (mut sim, actuation) = sample_sim();
-        sim.contact.as_mut().unwrap().stage_limit = 1;
-        let mut restarted = Vec::new();
-        solve_sweep(&sim, actuation.as_ref(), 8, 127, |frame, _, _, stats, _| {
-            if stats.contact.as_ref().unwrap().from_rest {
-                restarted.push(frame);
-            }
-        });
-        assert!(restarted.contains(&7), "restarted from rest: {restarted:?}");
-        assert!(!restarted.contains(&0), "frame 0 starts at rest");
+        for (limit, floor) in [(1, SHORTEST_WARM_STAGE), (MAX_POSE_STAGES, 0.6)] {
+            let model = sim.contact.as_mut().unwrap();
+            (model.stage_limit, model.shortest_warm_stage) = (limit, floor);
+            let mut restarted = Vec::new();
+            solve_sweep(&sim, actuation.as_ref(), 8, 127, |frame, _, _, stats, _| {
+                if stats.contact.as_ref().unwrap().from_rest {
+                    restarted.push(frame);
+                }
+            });
+            assert!(restarted.contains(&7), "{limit}, {floor}: from rest {restarted:?}");
+            assert!(!restarted.contains(&0), "frame 0 starts at rest");
+        }
 
         sim.contact.as_mut().unwrap().stage_limit = 0;
         let a = actuation.actuate(&random_codes(1, 127)[0]).unwrap();
