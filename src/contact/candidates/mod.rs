@@ -40,12 +40,8 @@ impl Candidates {
     pub fn build(mesh: &ContactMesh, x: &[f64], inflation: f64) -> Result<Self, ContactError> {
         mesh.check_positions(x)?;
         check_inflation(inflation)?;
-        Ok(Self::from_boxes(mesh, x, |ids: &[u32]| {
-            Box3::around_iter(
-                ids.iter().map(|&i| Point3::from(vertex(x, i))),
-                0.5 * inflation,
-            )
-        }))
+        let boxes = point_boxes(x, 0.5 * inflation);
+        Ok(Self::from_boxes(mesh, x, |ids: &[u32]| boxes.of(ids)))
     }
 
     /// Pairs that may come closer than `inflation` during the linear step `x → x + dx`: every
@@ -59,7 +55,8 @@ impl Candidates {
         inflation: f64,
     ) -> Result<Self, ContactError> {
         check_swept(mesh, x, dx, inflation)?;
-        Ok(Self::from_boxes(mesh, x, swept_box(x, dx, inflation)))
+        let boxes = swept_boxes(x, dx, inflation);
+        Ok(Self::from_boxes(mesh, x, |ids: &[u32]| boxes.of(ids)))
     }
 
     /// Total number of pairs.
@@ -106,10 +103,11 @@ impl Candidates {
         inflation: f64,
     ) -> Result<Self, ContactError> {
         check_swept(mesh, x, dx, inflation)?;
+        let boxes = swept_boxes(x, dx, inflation);
         Ok(Self::from_layouts(
             mesh,
             &prepared.moving,
-            swept_box(x, dx, inflation),
+            |ids: &[u32]| boxes.of(ids),
         ))
     }
 
@@ -191,7 +189,7 @@ impl Candidates {
         // Moving against moving: pairs the cells keep apart are dropped a whole subtree pair
         // at a time (the same test at nodes and primitives, monotone in both).
         let test = |a: &Celled<B>, b: &Celled<B>| {
-            !mesh.cells_keep_apart(a.cell, b.cell) && test(&a.bound, &b.bound)
+            test(&a.bound, &b.bound) && !mesh.cells_keep_apart(a.cell, b.cell)
         };
         let test_fixed = |a: &Celled<B>, b: &Box3| test_fixed(&a.bound, b);
         let flipped = |a: &Box3, b: &Celled<B>| test_fixed(b, a);
@@ -308,8 +306,9 @@ impl EdgeFaceLayouts {
         skip_kept_apart: bool,
         emit: &(impl Fn(u32, u32, &mut Vec<T>) + Sync),
     ) -> Vec<T> {
+        let boxes = point_boxes(y, 0.0);
         let bound_of = |ids: &[u32]| Celled {
-            bound: Box3::around_iter(ids.iter().map(|&i| Point3::from(vertex(y, i))), 0.0),
+            bound: boxes.of(ids),
             cell: mesh.cell_of(ids),
         };
         let edge_bounds: Vec<_> = mesh.edges().par_iter().map(|e| bound_of(e)).collect();
@@ -328,8 +327,8 @@ impl EdgeFaceLayouts {
             },
             false,
             &|a: &Celled<Box3>, b: &Celled<Box3>| {
-                !(skip_kept_apart && mesh.cells_keep_apart(a.cell, b.cell))
-                    && a.bound.overlaps(&b.bound)
+                a.bound.overlaps(&b.bound)
+                    && !(skip_kept_apart && mesh.cells_keep_apart(a.cell, b.cell))
             },
             emit,
         )
@@ -477,9 +476,8 @@ impl FixedPrimitives {
     /// and the moving primitives' layouts from their positions at `x`.
     pub fn new(mesh: &ContactMesh, x: &[f64]) -> Result<Self, ContactError> {
         mesh.check_positions(x)?;
-        let trees = FixedTrees::new(mesh, &|ids: &[u32]| {
-            Box3::around_iter(ids.iter().map(|&i| Point3::from(vertex(x, i))), 0.0)
-        });
+        let boxes = point_boxes(x, 0.0);
+        let trees = FixedTrees::new(mesh, &|ids: &[u32]| boxes.of(ids));
         let positions = trees
             .vertices
             .iter()
@@ -531,12 +529,8 @@ impl Candidates {
         mesh.check_positions(x)?;
         check_inflation(inflation)?;
         fixed.check(x, None)?;
-        let box_of = |ids: &[u32]| {
-            Box3::around_iter(
-                ids.iter().map(|&i| Point3::from(vertex(x, i))),
-                0.5 * inflation,
-            )
-        };
+        let boxes = point_boxes(x, 0.5 * inflation);
+        let box_of = |ids: &[u32]| boxes.of(ids);
         Ok(Self::from_split(
             mesh,
             &fixed.moving,
@@ -558,10 +552,11 @@ impl Candidates {
     ) -> Result<Self, ContactError> {
         check_swept(mesh, x, dx, inflation)?;
         fixed.check(x, Some(dx))?;
+        let boxes = swept_boxes(x, dx, inflation);
         Ok(Self::from_split(
             mesh,
             &fixed.moving,
-            &swept_box(x, dx, inflation),
+            &|ids: &[u32]| boxes.of(ids),
             &fixed.trees,
             &|a: &Box3, b: &Box3| a.overlaps(b),
             &grown_overlap(0.5 * inflation),
@@ -583,12 +578,16 @@ impl Candidates {
     ) -> Result<Self, ContactError> {
         check_swept(mesh, x, dx, dhat)?;
         fixed.check(x, Some(dx))?;
-        let swept = swept_box(x, dx, dhat);
-        let bound_of = |ids: &[u32]| SweptBound {
-            swept: swept(ids),
-            at: Box3::around_iter(ids.iter().map(|&i| Point3::from(vertex(x, i))), 0.0),
-            moved: Box3::around_iter(ids.iter().map(|&i| Point3::from(vertex(dx, i))), 0.0),
-        };
+        let bounds = VertexBounds::new(x, |i| {
+            let p = Point3::from(vertex(x, i));
+            let d = Point3::from(vertex(dx, i));
+            SweptBound {
+                swept: Box3::around(&[p, p + d.coords], 0.5 * dhat),
+                at: Box3::around(&[p], 0.0),
+                moved: Box3::around(&[d], 0.0),
+            }
+        });
+        let bound_of = |ids: &[u32]| bounds.of(ids);
         let grown = grown_overlap(0.5 * dhat);
         let no_move = Box3::around(&[Point3::origin()], 0.0);
         Ok(Self::from_split(
@@ -628,14 +627,14 @@ impl Candidates {
         check_swept(mesh, x0, start, dhat)?;
         mesh.check_positions(end)?;
         fixed.check(x0, None)?;
-        let bound_of = |ids: &[u32]| MovedBound {
-            at: Box3::around_iter(ids.iter().map(|&i| Point3::from(vertex(x0, i))), 0.0),
-            moved: Box3::around_iter(
-                ids.iter()
-                    .flat_map(|&i| [Point3::from(vertex(start, i)), Point3::from(vertex(end, i))]),
+        let bounds = VertexBounds::new(x0, |i| MovedBound {
+            at: Box3::around(&[Point3::from(vertex(x0, i))], 0.0),
+            moved: Box3::around(
+                &[Point3::from(vertex(start, i)), Point3::from(vertex(end, i))],
                 0.0,
             ),
-        };
+        });
+        let bound_of = |ids: &[u32]| bounds.of(ids);
         // The fixed primitives' trees stay as built at `x0`; their vertices may have moved
         // since (the bones' next pose), all within one box of displacements.
         let fixed_moved = Box3::around_iter(
@@ -770,12 +769,12 @@ fn gap_and_reach(at_a: &Box3, moved_a: &Box3, at_b: &Box3, moved_b: &Box3) -> (f
     (f64::sqrt(gap), f64::sqrt(far))
 }
 
-/// The centre of a primitive (its vertex ids) at `x`: what a tree layout sorts by.
 /// A tree layout over primitives (their vertex lists) from their centres at `x`.
 fn layout_of<'a>(x: &[f64], primitives: impl Iterator<Item = &'a [u32]>) -> Layout {
     Layout::new(&primitives.map(|ids| centre(x, ids)).collect::<Vec<_>>())
 }
 
+/// The centre of a primitive (its vertex ids) at `x`: what a tree layout sorts by.
 fn centre(x: &[f64], ids: &[u32]) -> Point3<f64> {
     Point3::from(ids.iter().map(|&i| vertex(x, i)).sum::<super::math::Vec3>() / ids.len() as f64)
 }
@@ -796,19 +795,40 @@ fn check_swept(
     check_inflation(inflation)
 }
 
-/// The box of a primitive (its vertex ids) over the step `x → x + dx`, grown by
-/// `inflation/2`: a vertex moves on a segment, so both ends bound its path.
-fn swept_box<'a>(
-    x: &'a [f64],
-    dx: &'a [f64],
-    inflation: f64,
-) -> impl Fn(&[u32]) -> Box3 + Sync + 'a {
-    move |ids: &[u32]| {
-        let ends = ids.iter().flat_map(|&i| {
-            let p = Point3::from(vertex(x, i));
-            [p, p + vertex(dx, i)]
-        });
-        Box3::around_iter(ends, 0.5 * inflation)
+/// Every vertex's box over the step `x → x + dx`, grown by `inflation/2`: a vertex moves on
+/// a segment, so both ends bound its path (and a primitive's union of them, its path).
+fn swept_boxes(x: &[f64], dx: &[f64], inflation: f64) -> VertexBounds<Box3> {
+    VertexBounds::new(x, move |i| {
+        let p = Point3::from(vertex(x, i));
+        Box3::around(&[p, p + vertex(dx, i)], 0.5 * inflation)
+    })
+}
+
+/// Every vertex's box at `x` grown by `margin`.
+fn point_boxes(x: &[f64], margin: f64) -> VertexBounds<Box3> {
+    VertexBounds::new(x, move |i| {
+        Box3::around(&[Point3::from(vertex(x, i))], margin)
+    })
+}
+
+/// Every vertex's bound, a primitive's being the union of its vertices' (recomputing each
+/// primitive's from the positions was a fifth of a `VerletList::near_beyond`). Unions of
+/// boxes are exact: the bounds are the same.
+struct VertexBounds<B>(Vec<B>);
+
+impl<B: Bound> VertexBounds<B> {
+    /// `of(vertex)` for every vertex of positions `x`.
+    fn new(x: &[f64], of: impl Fn(u32) -> B + Sync + Send) -> Self {
+        Self((0..(x.len() / 3) as u32).into_par_iter().map(of).collect())
+    }
+
+    /// The bound of the primitive with these vertices.
+    #[inline]
+    fn of(&self, ids: &[u32]) -> B {
+        let b = &self.0;
+        ids[1..]
+            .iter()
+            .fold(b[ids[0] as usize], |u, &i| u.union(&b[i as usize]))
     }
 }
 
