@@ -183,17 +183,34 @@ impl ContactModel {
 }
 
 /// A Verlet list with the trees over the teeth it was built with: the broad phase a contact
-/// solve ended with, kept in the [`super::SimState`] so the next solve starts from it. The
-/// next frame's first linearization (at the same state) reads its active set from the list
-/// instead of a broad phase of its own, and the next solve keeps the list while every
-/// contact vertex, teeth included, stays within [`VERLET_REUSE`]·δ of where it was built.
-/// Any list is sound for any later positions: the pairs beyond it come from the relative
-/// motion since, the teeth's motion to a new pose included ([`VerletList::near_beyond`]).
+/// solve ended with, kept in the [`super::SimState`] so the next solve starts from it, and
+/// the pairs within d̂ where that solve ended. A start there (the next frame's first
+/// linearization, or a solve with the bones unchanged) takes its active set from those
+/// pairs, with no broad phase of its own; a start elsewhere reads it from the list. The next
+/// solve keeps the list while every contact vertex, teeth included, stays within
+/// [`VERLET_REUSE`]·δ of where it was built. Any list is sound for any later positions: the
+/// pairs beyond it come from the relative motion since, the teeth's motion to a new pose
+/// included ([`VerletList::near_beyond`]).
 #[derive(Clone)]
 pub(crate) struct ContactCache {
     fixed: Arc<FixedPrimitives>,
     list: Arc<VerletList>,
+    ended: Option<Arc<Ended>>,
 }
+
+/// Where a contact solve ended: the contact positions and pairs that hold every pair within
+/// d̂ there (its last step's candidates, or its start's active set).
+struct Ended {
+    y: Vec<f64>,
+    pairs: Candidates,
+}
+
+/// How far (cm) a start's contact positions may be from where the last solve ended to take
+/// that solve's active set. Recomputed from the tissue, the same state's positions differ
+/// from the solve's own (advanced step by step) by rounding (~10⁻¹⁵ cm); a pair that is
+/// within d̂ at one and not at the other is then within ~10⁻⁹ cm of d̂, where its barrier
+/// (∝ (d − d̂)²) is nil.
+const ENDED_HERE: f64 = 1e-9;
 
 impl std::fmt::Debug for ContactCache {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -287,9 +304,11 @@ pub(crate) struct ContactSolve<'a> {
     pub(crate) potential: BarrierPotential,
     kappa_max: f64,
     bbox: f64,
-    /// Contact positions at the current `x`, and the active set there.
+    /// Contact positions at the current `x`, the active set there, and pairs that hold it
+    /// (the last accepted step's candidates, or the start's active set).
     y: Vec<f64>,
     collisions: Collisions,
+    holding: Candidates,
     /// Unit-stiffness barrier `Σ m·b` at the current `x`.
     barrier: f64,
     prev_min_distance2: f64,
@@ -356,21 +375,37 @@ impl<'a> ContactSolve<'a> {
         let still = vec![0.0; 3 * m];
         let slack = VERLET_SLACK * dhat;
         let mut fixed = cache.filter(|c| c.fixed.holds(&y)).map(|c| c.fixed.clone());
+        let ended_here = cache.and_then(|c| {
+            let ended = c.ended.as_ref()?;
+            let here = ended
+                .y
+                .iter()
+                .zip(&y)
+                .all(|(a, b)| (a - b).abs() <= ENDED_HERE);
+            here.then(|| (c, ended.pairs.clone()))
+        });
         let kept = cache.filter(|c| c.list.moved_within(&y, &still, VERLET_REUSE * slack));
-        let (verlet, close, built) = match kept {
-            // Near where the last solve's list was built (at the same state for the next
-            // frame's linearization): the active set from it (the pairs a broad phase finds).
-            Some(c) => {
+        let (verlet, close, built) = match (ended_here, kept) {
+            // Where the last solve ended: its active set.
+            (Some((c, close)), _) => (Some(c.clone()), close, false),
+            // Near where the last solve's list was built: the active set from it (the pairs
+            // a broad phase finds).
+            (None, Some(c)) => {
                 let close = c.list.near_beyond(mesh, &c.fixed, &y, &still, dhat)?.0;
                 (Some(c.clone()), close, false)
             }
-            None => {
+            (None, None) => {
                 let trees = trees_here(&mut fixed, mesh, &y)?;
                 if with_list {
                     let list = VerletList::build(mesh, &trees, &y, dhat, slack)?;
                     let close = list.near(mesh, &y, &still, dhat)?;
                     let list = Arc::new(list);
-                    (Some(ContactCache { fixed: trees, list }), close, true)
+                    let cache = ContactCache {
+                        fixed: trees,
+                        list,
+                        ended: None,
+                    };
+                    (Some(cache), close, true)
                 } else {
                     (None, Candidates::build_with(mesh, &trees, &y, dhat)?, false)
                 }
@@ -405,6 +440,7 @@ impl<'a> ContactSolve<'a> {
             bbox,
             y,
             collisions,
+            holding: close,
             barrier,
             prev_min_distance2,
             dy: vec![0.0; 3 * m],
@@ -501,11 +537,12 @@ impl<'a> ContactSolve<'a> {
             self.verlet = Some(ContactCache {
                 fixed,
                 list: Arc::new(list),
+                ended: None,
             });
             self.stats.candidate_builds += 1;
             self.short_beyond_since_build = 0;
         }
-        let ContactCache { fixed, list } = self.verlet.as_ref().expect("built above");
+        let ContactCache { fixed, list, .. } = self.verlet.as_ref().expect("built above");
         self.candidates = if list.covers(&self.y, &swept) {
             list.near(mesh, &self.y, &swept, dhat)?
         } else {
@@ -563,6 +600,7 @@ impl<'a> ContactSolve<'a> {
     pub(crate) fn accept(&mut self, n: usize) -> Result<f64, ContactError> {
         std::mem::swap(&mut self.y, &mut self.y_trial);
         std::mem::swap(&mut self.collisions, &mut self.trial_collisions);
+        self.holding.clone_from(&self.candidates);
         self.barrier = self.trial_barrier;
         let min_d2 = self.collisions.min_distance_squared();
         let kappa = update_barrier_stiffness(
@@ -647,12 +685,20 @@ impl<'a> ContactSolve<'a> {
     }
 
     /// Fills the end-of-solve statistics; the broad phase to keep for the next solve (none
-    /// without a line search).
+    /// without a line search), with where this one ended.
     pub(crate) fn finish(mut self) -> (ContactStats, Option<ContactCache>) {
         self.stats.active_pairs = self.collisions.len();
         self.stats.min_distance = self.collisions.min_distance_squared().sqrt();
         self.stats.stiffness = self.potential.stiffness;
-        (self.stats, self.verlet)
+        let ended = Arc::new(Ended {
+            y: self.y,
+            pairs: self.holding,
+        });
+        let cache = self.verlet.map(|c| ContactCache {
+            ended: Some(ended),
+            ..c
+        });
+        (self.stats, cache)
     }
 }
 

@@ -760,7 +760,10 @@ mod tests {
                     restarted.push(frame);
                 }
             });
-            assert!(restarted.contains(&7), "{limit}, {floor}: from rest {restarted:?}");
+            assert!(
+                restarted.contains(&7),
+                "{limit}, {floor}: from rest {restarted:?}"
+            );
             assert!(!restarted.contains(&0), "frame 0 starts at rest");
         }
 
