@@ -776,6 +776,40 @@ mod tests {
         assert_eq!(solve(&pose(1.05, 0.02), &mut state).new_crossings, 0);
     }
 
+    /// Where the last solve ended (the next frame's linearization), a start takes its active
+    /// set from the pairs the solve ended with: the same set a broad phase finds there. It
+    /// takes them only there: with the ended pairs emptied, a start there finds no pair, and
+    /// one 10⁻⁶ cm away finds them all again (from the list).
+    #[test]
+    fn a_start_where_the_last_solve_ended_takes_its_active_set() {
+        use super::{ContactCache, ContactSolve, Ended};
+        use crate::contact::Candidates;
+        use std::sync::Arc;
+        let (sim, state, _, bones, _) = pressed_lips();
+        let model = sim.contact.as_ref().unwrap();
+        let cache = state.contact_cache.as_ref().unwrap();
+        let ended = cache.ended.as_ref().expect("the solve says where it ended");
+        let g = vec![0.0; state.x.len()];
+        let start = |x: &[f64], cache: Option<&ContactCache>| {
+            ContactSolve::start(model, x, &bones, &g, cache)
+                .unwrap()
+                .collisions
+        };
+        let fresh = start(&state.x, None);
+        assert!(!fresh.is_empty());
+        assert_eq!(start(&state.x, Some(cache)), fresh);
+        let emptied = ContactCache {
+            ended: Some(Arc::new(Ended {
+                y: ended.y.clone(),
+                pairs: Candidates::default(),
+            })),
+            ..cache.clone()
+        };
+        assert!(start(&state.x, Some(&emptied)).is_empty());
+        let nudged: Vec<f64> = state.x.iter().map(|v| v + 1e-6).collect();
+        assert_eq!(start(&nudged, Some(&emptied)), start(&nudged, None));
+    }
+
     /// The barrier is part of the energy that sensitivities differentiate: at a solved state
     /// with active contact, `H·v` (elastic + exact barrier Hessian) matches central finite
     /// differences of `∇E` (elastic + barrier gradient).
