@@ -384,17 +384,17 @@ impl<'a> ContactSolve<'a> {
                 .all(|(a, b)| (a - b).abs() <= ENDED_HERE);
             here.then(|| (c, ended.pairs.clone()))
         });
-        let kept = cache.filter(|c| c.list.moved_within(&y, &still, VERLET_REUSE * slack));
-        let (verlet, close, built) = match (ended_here, kept) {
+        let kept = || cache.filter(|c| c.list.moved_within(&y, &still, VERLET_REUSE * slack));
+        let (verlet, close, built) = match ended_here {
             // Where the last solve ended: its active set.
-            (Some((c, close)), _) => (Some(c.clone()), close, false),
+            Some((c, close)) => (Some(c.clone()), close, false),
             // Near where the last solve's list was built: the active set from it (the pairs
             // a broad phase finds).
-            (None, Some(c)) => {
+            None if let Some(c) = kept() => {
                 let close = c.list.near_beyond(mesh, &c.fixed, &y, &still, dhat)?.0;
                 (Some(c.clone()), close, false)
             }
-            (None, None) => {
+            None => {
                 let trees = trees_here(&mut fixed, mesh, &y)?;
                 if with_list {
                     let list = VerletList::build(mesh, &trees, &y, dhat, slack)?;
@@ -690,12 +690,11 @@ impl<'a> ContactSolve<'a> {
         self.stats.active_pairs = self.collisions.len();
         self.stats.min_distance = self.collisions.min_distance_squared().sqrt();
         self.stats.stiffness = self.potential.stiffness;
-        let ended = Arc::new(Ended {
-            y: self.y,
-            pairs: self.holding,
-        });
         let cache = self.verlet.map(|c| ContactCache {
-            ended: Some(ended),
+            ended: Some(Arc::new(Ended {
+                y: self.y,
+                pairs: self.holding,
+            })),
             ..c
         });
         (self.stats, cache)
