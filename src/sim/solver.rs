@@ -285,6 +285,18 @@ fn lerp_pose(a: &BonePose, b: &BonePose, s: f64) -> BonePose {
     }
 }
 
+/// Runs `work` on a thread of rayon's pool. A solve runs thousands of parallel loops; started
+/// from a thread outside the pool, each is handed over to the pool and waited for (a futex
+/// wake-up and sleep apiece: a quarter of a one-thread contact frame's time, ~0.5 s of system
+/// time in `contact_drag`), while from a worker it simply runs there.
+fn on_worker<R: Send>(work: impl FnOnce() -> R + Send) -> R {
+    if rayon::current_thread_index().is_some() {
+        work()
+    } else {
+        rayon::join(work, || ()).0
+    }
+}
+
 impl Simulator {
     /// Solves for the equilibrium under `actuations` (one per element) and `bones`, starting
     /// from `state` (the previous frame, or [`Simulator::rest_state`]) and leaving the result
@@ -299,6 +311,16 @@ impl Simulator {
     /// inverted elements is returned as [`SimError::Inverted`] (the state then holds it, for
     /// inspection). Non-finite trial states are never accepted, so the state stays finite.
     pub fn solve(
+        &self,
+        actuations: &[SymTensor],
+        bones: &BonePose,
+        state: &mut SimState,
+        settings: &SolveSettings,
+    ) -> Result<SolveStats, SimError> {
+        on_worker(|| self.solve_on_worker(actuations, bones, state, settings))
+    }
+
+    fn solve_on_worker(
         &self,
         actuations: &[SymTensor],
         bones: &BonePose,

@@ -586,5 +586,9 @@ fn same_inputs_give_bitwise_identical_results() {
             .unwrap();
         (state.flat_positions().to_vec(), stats.energy_history)
     };
-    assert_eq!(run(), run());
+    let first = run();
+    assert_eq!(first, run());
+    // Called from a thread of the pool, the solve runs there instead of being handed over.
+    assert!(rayon::current_thread_index().is_none());
+    assert_eq!(first, rayon::join(run, || ()).0);
 }
