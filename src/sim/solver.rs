@@ -287,8 +287,10 @@ fn lerp_pose(a: &BonePose, b: &BonePose, s: f64) -> BonePose {
 
 /// Runs `work` on a thread of rayon's pool. A solve runs thousands of parallel loops; started
 /// from a thread outside the pool, each is handed over to the pool and waited for (a futex
-/// wake-up and sleep apiece: a quarter of a one-thread contact frame's time, ~0.5 s of system
-/// time in `contact_drag`), while from a worker it simply runs there.
+/// wake-up and sleep apiece: a fifth of a one-thread contact frame's time, ~0.4 s of system
+/// time in `contact_drag`), while from a worker it simply runs there. Not for the adjoint:
+/// there the sequential triangular solves took ~2.7× as long on the worker (perf of stage-2
+/// training, likely no longer having a core's cache to themselves), and training slowed.
 fn on_worker<R: Send>(work: impl FnOnce() -> R + Send) -> R {
     if rayon::current_thread_index().is_some() {
         work()
