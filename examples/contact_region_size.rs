@@ -64,7 +64,10 @@ fn main() -> Result<()> {
     let full = FaceContact::new(&model, &FaceContactSettings::default())?;
     let field = LipField::new(&model, &full, 1.5);
     let (off, off_crossing) = drag(&model, &field, None, &full)?;
-    println!("contact off: median frame {off:.1} ms, {off_crossing} of 16 frames cross");
+    println!(
+        "contact off: median frame {off:.1} ms, {off_crossing} of {} frames cross",
+        FRAMES * PASSES
+    );
     println!(
         "| lip reach (cm) | contact vertices | median frame (ms) | × contact-free | frames crossing (full region) |"
     );
