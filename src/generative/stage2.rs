@@ -45,7 +45,7 @@ use crate::nn::{CodeBatch, Pass, Tape};
 use crate::rig::FaceRig;
 use crate::sim::{
     Bone, BonePose, Quality, RigidMotion, SimError, SimState, Simulator, SolveSettings, SolveStats,
-    SymTensor, Termination,
+    SymTensor, Termination, on_worker,
 };
 
 /// The stage-2 networks' file name in a sample folder, next to the stage-1
@@ -555,7 +555,11 @@ pub fn stage2_loss(
     for (b, &(f, p, _)) in picks.iter().enumerate() {
         let row: Vec<f64> = (0..u.ncols()).map(|k| u[(b, k)]).collect();
         let face = &data.faces[f];
-        match pose_gradient(nets, face, &face.poses[p], &row, &data.settings)? {
+        // The solve and its adjoint on one thread: apart, the adjoint's triangular solves
+        // find the factor in the other core's cache.
+        let gradient =
+            on_worker(|| pose_gradient(nets, face, &face.poses[p], &row, &data.settings));
+        match gradient? {
             Ok(g) => used.push((f, codes[b], g)),
             Err(_) => skipped += 1,
         }

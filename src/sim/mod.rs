@@ -23,7 +23,7 @@ pub use attachment::{Attachments, Bone, BonePose, RigidMotion};
 pub use contact::{ContactStats, ContactStep};
 pub use contact_gate::{ContactGate, GateOutcome};
 pub use simulator::{SimConfig, SimError, SimState, Simulator};
-pub use solver::{Quality, SolveSettings, SolveStats, Termination};
+pub use solver::{Quality, SolveSettings, SolveStats, Termination, on_worker};
 pub use tensor::SymTensor;
 
 #[cfg(test)]

@@ -288,10 +288,12 @@ fn lerp_pose(a: &BonePose, b: &BonePose, s: f64) -> BonePose {
 /// Runs `work` on a thread of rayon's pool. A solve runs thousands of parallel loops; started
 /// from a thread outside the pool, each is handed over to the pool and waited for (a futex
 /// wake-up and sleep apiece: a fifth of a one-thread contact frame's time, ~0.4 s of system
-/// time in `contact_drag`), while from a worker it simply runs there. Not for the adjoint:
-/// there the sequential triangular solves took ~2.7× as long on the worker (perf of stage-2
-/// training, likely no longer having a core's cache to themselves), and training slowed.
-fn on_worker<R: Send>(work: impl FnOnce() -> R + Send) -> R {
+/// time in `contact_drag`), while from a worker it simply runs there. [`Simulator::solve`]
+/// does this itself; a caller that follows a solve with more work on the same simulator
+/// (e.g. [`Simulator::sensitivities`]) should wrap both, so that they share one core's
+/// cache: stage-2 training's adjoint took ~2.7× as long in its triangular solves when the
+/// solve had run on a worker and the adjoint on the caller's thread.
+pub fn on_worker<R: Send>(work: impl FnOnce() -> R + Send) -> R {
     if rayon::current_thread_index().is_some() {
         work()
     } else {
