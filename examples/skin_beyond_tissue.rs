@@ -79,7 +79,7 @@ fn main() -> Result<()> {
                 Binding::Embedded { .. } => 0,
                 Binding::Blended { embedded, .. } if embedded > 0.0 => 1,
                 Binding::Blended { .. } => 2,
-                Binding::Rigid(_) => 3,
+                Binding::Rigid(_) | Binding::Bones { .. } => 3,
             }] += 1;
             k
         });

@@ -197,3 +197,109 @@ pub fn bench_extremes(args: &ExtremesArgs) -> Result<()> {
     );
     Ok(())
 }
+
+/// Contact settings a fidelity run measures.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum ContactRuns {
+    Off,
+    On,
+    Both,
+}
+
+#[derive(clap::Args)]
+pub struct ShapesArgs {
+    #[arg(long, default_value = facesim::sample::SAMPLE_DIR)]
+    sample: PathBuf,
+    #[arg(long, default_value = "../shared/data/ict-facekit")]
+    rig: PathBuf,
+    /// Sample faces to measure (default: all).
+    #[arg(long, value_delimiter = ',')]
+    faces: Vec<String>,
+    #[arg(long, default_value_t = facesim::sim::Quality::Final)]
+    quality: facesim::sim::Quality,
+    /// Lip and teeth contact in the solve.
+    #[arg(long, value_enum, default_value_t = ContactRuns::Both)]
+    contact: ContactRuns,
+    /// Drive the faces with these networks (a `generative.nn` file) instead of the sample's
+    /// actuation bases.
+    #[arg(long)]
+    networks: Option<PathBuf>,
+    /// Also write the rows as JSON here.
+    #[arg(long)]
+    json: Option<PathBuf>,
+}
+
+pub fn bench_shapes(args: &ShapesArgs) -> Result<()> {
+    use facesim::bench::shapes;
+    let sample = facesim::sample::Sample::load(&args.sample)
+        .with_context(|| format!("loading the sample from {}", args.sample.display()))?;
+    let rig = facesim::rig::FaceRig::load(&args.rig)
+        .with_context(|| format!("loading the rig from {}", args.rig.display()))?;
+    let networks = match &args.networks {
+        Some(path) => {
+            use facesim::generative::train::NetworkSet;
+            let nets = facesim::generative::nets::GenerativeNets::load(path)
+                .with_context(|| format!("loading {}", path.display()))?;
+            Some(facesim::generative::face::sample_actuations(
+                &sample,
+                std::sync::Arc::new(nets),
+            )?)
+        }
+        None => None,
+    };
+    let contacts: &[bool] = match args.contact {
+        ContactRuns::Off => &[false],
+        ContactRuns::On => &[true],
+        ContactRuns::Both => &[false, true],
+    };
+    let codes = shapes::single_shapes();
+    let mut rows = Vec::new();
+    for (i, face) in sample.faces.iter().enumerate() {
+        if !args.faces.is_empty() && !args.faces.contains(&face.name) {
+            continue;
+        }
+        let actuation = networks.as_ref().map_or(face.actuation.as_ref(), |n| n[i].as_ref());
+        let measured = shapes::MeasuredFace {
+            name: &face.name,
+            model: &face.model,
+            actuation,
+            style: face.style,
+        };
+        for &contact in contacts {
+            let settings = facesim::sim::SolveSettings {
+                contact,
+                ..args.quality.settings()
+            };
+            let bar = progress_bar(&format!(
+                "{} with contact {}",
+                face.name,
+                if contact { "on" } else { "off" }
+            ));
+            rows.extend(
+                shapes::measure(&rig, &measured, &codes, &settings, &|done, total| {
+                    bar.set_length(total as u64);
+                    bar.set_position(done as u64);
+                })
+                .with_context(|| format!("measuring {}", face.name))?,
+            );
+            bar.finish_and_clear();
+        }
+    }
+    print!("{}", shapes::table(&rows));
+    if let Some(path) = &args.json {
+        std::fs::write(path, serde_json::to_string_pretty(&rows)?)
+            .with_context(|| format!("writing {}", path.display()))?;
+    }
+    Ok(())
+}
+
+/// A progress bar on standard error (hidden when it is not a terminal).
+fn progress_bar(message: &str) -> indicatif::ProgressBar {
+    let bar = indicatif::ProgressBar::new(0);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} eta {eta}")
+            .expect("valid template"),
+    );
+    bar.set_message(message.to_string());
+    bar
+}

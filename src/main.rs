@@ -124,6 +124,10 @@ enum BenchTarget {
     /// Stability at the extremes: every slider 3× past its range, far styles, abrupt jumps
     /// and a long random walk, as the editor's session solves them.
     Extremes(cli_bench::ExtremesArgs),
+    /// Fidelity as the artist sees it: every slider alone at weight 1 on every sample face,
+    /// solved from rest, against the rig's own shape per render vertex (skin and lips, the
+    /// mouth lining), with a crossing audit of the whole render surface.
+    Shapes(cli_bench::ShapesArgs),
     /// Contact on a face: per-frame time with contact on and off at each quality preset,
     /// time in broad phase, barrier and CCD, low-rank update against refactoring.
     Contact {
@@ -294,6 +298,9 @@ fn main() -> Result<()> {
         Command::Bench {
             target: BenchTarget::Extremes(args),
         } => cli_bench::bench_extremes(&args)?,
+        Command::Bench {
+            target: BenchTarget::Shapes(args),
+        } => cli_bench::bench_shapes(&args)?,
         Command::Bench {
             target:
                 BenchTarget::Editor {

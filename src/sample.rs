@@ -540,7 +540,7 @@ mod tests {
         let sample = Sample::load(repo_sample()).unwrap();
         let face = &sample.faces[0];
         let (model, render) = (&face.model, &face.model.render);
-        let rigid_distance = SAMPLE_LOD.settings().skin_rigid_distance;
+        let rigid_distance = SAMPLE_LOD.settings().bindings.skin_rigid_distance;
         let outside = Embedding::new(&model.mesh, &render.rest).outside_distance;
         let far: Vec<usize> = (0..render.rest.len())
             .filter(|&i| {

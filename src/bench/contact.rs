@@ -77,7 +77,7 @@ pub struct ContactBenchRow {
     /// The after-solve crossing check.
     pub check_ms: f64,
     pub barrier_ms: f64,
-    pub ccd_ms: f64,
+    pub filter_ms: f64,
     pub linear_ms: f64,
     pub active_pairs: f64,
     /// Candidate lists built per frame (broad-phase runs).
@@ -210,7 +210,7 @@ pub fn bench(model: &FaceModel, frames: usize) -> Result<Vec<ContactBenchRow>, S
             staging_ms: contact_ms(&|c| c.staging_time),
             check_ms: contact_ms(&|c| c.check_time),
             barrier_ms: contact_ms(&|c| c.barrier_time),
-            ccd_ms: contact_ms(&|c| c.ccd_time),
+            filter_ms: contact_ms(&|c| c.filter_time),
             linear_ms: contact_ms(&|c| c.linear_time),
             active_pairs: per(&|s| s.contact.as_ref().map_or(0.0, |c| c.active_pairs as f64)),
             candidate_builds: per(&|s| {
@@ -272,7 +272,7 @@ pub fn contact_label(r: &ContactBenchRow) -> &'static str {
 /// The rows as a Markdown table.
 pub fn table(rows: &[ContactBenchRow]) -> String {
     let mut out = String::from(
-        "| sequence | preset | contact | step | frames ok | skipped | refused | gate ms | converged | frame ms | iterations | broad phase ms | barrier ms | CCD ms | linear ms | staging ms | check ms | active pairs | lists built | pairs per step |\n|---|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+        "| sequence | preset | contact | step | frames ok | skipped | refused | gate ms | converged | frame ms | iterations | broad phase ms | barrier ms | filter ms | linear ms | staging ms | check ms | active pairs | lists built | pairs per step |\n|---|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
     );
     for r in rows {
         out += &format!(
@@ -291,7 +291,7 @@ pub fn table(rows: &[ContactBenchRow]) -> String {
             r.iterations,
             r.broad_phase_ms,
             r.barrier_ms,
-            r.ccd_ms,
+            r.filter_ms,
             r.linear_ms,
             r.staging_ms,
             r.check_ms,

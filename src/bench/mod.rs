@@ -4,6 +4,7 @@ pub mod contact_sweep;
 pub mod editor;
 pub mod extremes;
 pub mod sequence;
+pub mod shapes;
 pub mod solver;
 pub mod tradeoff;
 

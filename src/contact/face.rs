@@ -30,7 +30,7 @@
 //! not repair) are recorded and left out of the after-solve check, which reports only new
 //! ones.
 
-use nalgebra::Point3;
+use nalgebra::{Matrix3, Point3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -56,7 +56,7 @@ pub struct FaceContactSettings {
 impl Default for FaceContactSettings {
     fn default() -> Self {
         Self {
-            lip_reach: 1.5,
+            lip_reach: crate::model::bindings::TISSUE_LINING_REACH,
             teeth_reach: 0.8,
         }
     }
@@ -69,6 +69,37 @@ pub enum ContactBinding {
     Embedded { tet: [u32; 4], weights: [f64; 4] },
     /// With a bone, from its rest position.
     Rigid { bone: Bone, rest: Point3<f64> },
+    /// Between the bones (the deep mouth lining), by its jaw map
+    /// ([`crate::model::face::between_bones`]).
+    Bones { jaw: Matrix3<f64>, rest: Point3<f64> },
+}
+
+impl ContactBinding {
+    /// The bone that moves the vertex most, for a vertex no tissue moves.
+    pub fn bone(&self) -> Option<Bone> {
+        match *self {
+            ContactBinding::Embedded { .. } => None,
+            ContactBinding::Rigid { bone, .. } => Some(bone),
+            ContactBinding::Bones { jaw, .. } => Some(if jaw.trace() >= 1.5 {
+                Bone::Jaw
+            } else {
+                Bone::Skull
+            }),
+        }
+    }
+
+    /// `F` with `∂y/∂(jaw pose) = F·∂T_jaw(rest)/∂(jaw pose)`: `I` on the jaw, the jaw map
+    /// turned with the head between the bones, 0 on the skull or in the tissue.
+    pub fn jaw_factor(&self, bones: &BonePose) -> Matrix3<f64> {
+        match *self {
+            ContactBinding::Rigid { bone: Bone::Jaw, .. } => Matrix3::identity(),
+            ContactBinding::Bones { jaw, .. } => {
+                let turn = bones.skull.rotation_matrix();
+                turn * jaw * turn.transpose()
+            }
+            _ => Matrix3::zeros(),
+        }
+    }
 }
 
 /// A pair within d̂ at rest is activated at this fraction of its rest distance.
@@ -78,6 +109,7 @@ pub const CLOSE_PAIR_ACTIVATION: f64 = 0.5;
 const SOFT: u16 = 0;
 const ON_SKULL: u16 = 1;
 const ON_JAW: u16 = 2;
+const BETWEEN_BONES: u16 = 3;
 
 /// The contact surfaces of one face, in their own vertex numbering (contact vertices).
 #[derive(Clone, Debug)]
@@ -195,6 +227,10 @@ impl FaceContact {
                     bone,
                     rest: render.rest[r as usize],
                 }),
+                Binding::Bones { jaw } => Ok(ContactBinding::Bones {
+                    jaw,
+                    rest: render.rest[r as usize],
+                }),
                 // Only skin far from the mouth, on the skull, is blended; a contact surface
                 // reaching it would need an affine binding with a pose-dependent offset.
                 Binding::Blended { .. } => Err(ContactError::InvalidMesh(format!(
@@ -214,12 +250,15 @@ impl FaceContact {
                 ContactBinding::Rigid {
                     bone: Bone::Jaw, ..
                 } => ON_JAW,
+                ContactBinding::Bones { .. } => BETWEEN_BONES,
             })
             .collect();
+        // Only the tissue can move against what the bones carry.
         let can_touch = [
-            vec![true, true, true],
-            vec![true, false, false],
-            vec![true, false, false],
+            vec![true, true, true, true],
+            vec![true, false, false, false],
+            vec![true, false, false, false],
+            vec![true, false, false, false],
         ];
         let rest: Vec<f64> = render_vertices
             .iter()
@@ -278,7 +317,7 @@ impl FaceContact {
             .iter()
             .filter_map(|b| match b {
                 ContactBinding::Embedded { tet, .. } => Some(*tet),
-                ContactBinding::Rigid { .. } => None,
+                ContactBinding::Rigid { .. } | ContactBinding::Bones { .. } => None,
             })
             .flatten()
             .collect();
@@ -379,6 +418,9 @@ impl FaceContact {
                 crate::geometry::embedding::interpolate(tet, weights, x)
             }
             ContactBinding::Rigid { bone, rest } => bones.target(*bone, &self.jaw_pivot, rest),
+            ContactBinding::Bones { jaw, rest } => {
+                crate::model::face::between_bones(jaw, bones, &self.jaw_pivot, rest)
+            }
         }
     }
 
@@ -392,7 +434,7 @@ impl FaceContact {
                         .coords
                         .as_slice(),
                 ),
-                ContactBinding::Rigid { .. } => out.fill(0.0),
+                ContactBinding::Rigid { .. } | ContactBinding::Bones { .. } => out.fill(0.0),
             });
     }
 

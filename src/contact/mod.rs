@@ -27,6 +27,7 @@ pub mod drive;
 pub mod face;
 mod math;
 pub mod mesh;
+pub mod planar;
 pub mod potential;
 #[cfg(test)]
 mod test_scenes;
@@ -40,6 +41,7 @@ pub use collisions::{Collision, CollisionKind, Collisions};
 pub use distance::{EdgeEdgeDistanceType, PointEdgeDistanceType, PointTriangleDistanceType};
 pub use math::{Matrix12, Vector12};
 pub use mesh::ContactMesh;
+pub use planar::{PlanarReport, planar_step_over};
 pub use potential::{
     BarrierPotential, HessianBlock, Projection, add_hessian_product, assemble_dense,
 };

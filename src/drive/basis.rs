@@ -11,7 +11,7 @@ use nalgebra::{Matrix3, SymmetricEigen};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use super::fit::{ActuationFitter, FitError, FitSettings};
+use crate::model::fit::{ActuationFitter, FitError, FitSettings};
 use super::{Actuation, ActuationModel, Codes, DriveError};
 use crate::model::file::{self, FileError, Format};
 use crate::model::{FaceModel, TargetError, shape_target};
@@ -170,7 +170,11 @@ impl ActuationModel for ActuationBasis {
                 }
             }
         }
-        let tensors: Vec<SymTensor> = logs.par_iter().with_min_len(256).map(exp_tensor).collect();
+        let tensors: Vec<SymTensor> = logs
+            .par_iter()
+            .with_min_len(256)
+            .map(|log| exp_tensor_within(log, BLENDED_STRETCH))
+            .collect();
         if let Some(e) = tensors.iter().position(|t| t.validate().is_err()) {
             return Err(DriveError::BadTensor {
                 element: e,
@@ -200,6 +204,27 @@ pub(crate) fn log_tensor(a: &SymTensor) -> [f32; 6] {
 }
 
 /// `exp L` of a symmetric tensor; exactly the identity for `L = 0`.
+/// The principal stretches a blend of the basis may ask of an element. The fits stretch the
+/// elements at the mouth corners up to 11× (jawOpen, mouthClose) and squeeze none below the
+/// fit's 0.3; a blend of many shapes at far slider and style values would add their logs up
+/// to stretches of 10⁹ (far styles: `bench::extremes`), which no tissue takes and f64
+/// barely holds: the blend's stretches are clamped to this range.
+pub const BLENDED_STRETCH: (f64, f64) = (0.05, 20.0);
+
+/// `exp` of a symmetric log with its eigenvalues clamped to `[ln lo, ln hi]`.
+fn exp_tensor_within(log: &[f64; 6], (lo, hi): (f64, f64)) -> SymTensor {
+    if log.iter().all(|&v| v == 0.0) {
+        return SymTensor::IDENTITY;
+    }
+    let eigen = SymmetricEigen::new(SymTensor(*log).to_matrix());
+    let (lo, hi) = (lo.ln(), hi.ln());
+    let m = eigen.eigenvectors
+        * Matrix3::from_diagonal(&eigen.eigenvalues.map(|l| l.clamp(lo, hi).exp()))
+        * eigen.eigenvectors.transpose();
+    SymTensor::from_matrix(&m)
+}
+
+#[cfg(test)]
 pub(crate) fn exp_tensor(log: &[f64; 6]) -> SymTensor {
     if log.iter().all(|&v| v == 0.0) {
         return SymTensor::IDENTITY;

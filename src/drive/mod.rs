@@ -8,7 +8,6 @@
 //! without them changing.
 
 pub mod basis;
-pub mod fit;
 
 use serde::{Deserialize, Serialize};
 

@@ -23,7 +23,7 @@ use serde::{Deserialize, Serialize};
 use super::GenerativeError;
 use crate::drive::Codes;
 use crate::drive::basis::log_tensor;
-use crate::drive::fit::{ActuationFitter, FitSettings};
+use crate::model::fit::{ActuationFitter, FitSettings};
 use crate::model::FaceModel;
 use crate::model::file::{self, Format};
 use crate::rig::{ExpressionCode, FaceRig, StyleCode};

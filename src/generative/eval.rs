@@ -53,6 +53,11 @@ pub struct EvalRow {
     pub mean_mm: Option<f64>,
     pub p95_mm: Option<f64>,
     pub max_mm: Option<f64>,
+    /// Where the largest error is: the rig vertex index and the held-out code.
+    #[serde(default)]
+    pub worst_vertex: Option<u32>,
+    #[serde(default)]
+    pub worst_code: Option<usize>,
     /// Mean `|det F − 1|` over the elements of the posed codes.
     pub mean_abs_det_change: Option<f64>,
     /// Mean and largest `|ΣV(x)/ΣV(X) − 1|` over the posed codes.
@@ -165,19 +170,23 @@ impl EvalReport {
 
     fn markdown(rows: &[EvalRow]) -> String {
         let mut s = String::from(
-            "| face | model | poses solved | vertex error mean (mm) | p95 (mm) | max (mm) | mean \\|det F − 1\\| | volume change mean / max (%) | inverted elements | poses with lip crossings (crossings) |\n|---|---|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+            "| face | model | poses solved | vertex error max (mm) | worst (rig vertex, code) | p95 (mm) | mean (mm) | mean \\|det F − 1\\| | volume change mean / max (%) | inverted elements | poses with lip crossings (crossings) |\n|---|---|---:|---:|---|---:|---:|---:|---:|---:|---:|\n",
         );
         let pct = |v: Option<f64>| opt(v.map(|v| 100.0 * v), 2);
         for r in rows {
             s.push_str(&format!(
-                "| {} | {} | {}/{} | {} | {} | {} | {} | {} / {} | {} | {} ({}) |\n",
+                "| {} | {} | {}/{} | {} | {} | {} | {} | {} | {} / {} | {} | {} ({}) |\n",
                 r.face,
                 r.model,
                 r.poses - r.failed,
                 r.poses,
-                opt(r.mean_mm, 3),
-                opt(r.p95_mm, 3),
                 opt(r.max_mm, 3),
+                match (r.worst_vertex, r.worst_code) {
+                    (Some(v), Some(c)) => format!("{v}, {c}"),
+                    _ => "-".into(),
+                },
+                opt(r.p95_mm, 3),
+                opt(r.mean_mm, 3),
                 opt(r.mean_abs_det_change, 4),
                 pct(r.mean_abs_volume_change),
                 pct(r.max_abs_volume_change),
@@ -412,10 +421,15 @@ pub fn evaluate(
             .collect();
         for (&(name, _), per_code) in f.models.iter().zip(&results) {
             let all = vec![true; codes.len()];
+            let rig_of: Vec<u32> = embedded
+                .iter()
+                .map(|&i| face.render.rig_vertices[i])
+                .collect();
             rows.push(pooled_row(
                 &face.name,
                 name,
                 face.mesh.tets.len(),
+                &rig_of,
                 per_code,
                 &all,
             ));
@@ -423,6 +437,7 @@ pub fn evaluate(
                 &face.name,
                 name,
                 face.mesh.tets.len(),
+                &rig_of,
                 per_code,
                 &common,
             ));
@@ -509,9 +524,21 @@ fn pooled_row(
     face: &str,
     model: &str,
     elements: usize,
+    rig_of: &[u32],
     per_code: &[Option<Posed>],
     keep: &[bool],
 ) -> EvalRow {
+    let mut worst: Option<(f64, u32, usize)> = None;
+    for (c, posed) in per_code.iter().enumerate() {
+        let Some(p) = posed.as_ref().filter(|_| keep[c]) else {
+            continue;
+        };
+        for (e, &v) in p.errors.iter().zip(rig_of) {
+            if worst.is_none_or(|w| *e > w.0) {
+                worst = Some((*e, v, c));
+            }
+        }
+    }
     let kept: Vec<&Option<Posed>> = per_code
         .iter()
         .zip(keep)
@@ -533,6 +560,8 @@ fn pooled_row(
         mean_mm: some(errors.iter().sum::<f64>() / errors.len().max(1) as f64),
         p95_mm: some(quantile(&errors, 0.95)),
         max_mm: some(errors.iter().copied().fold(0.0, f64::max)),
+        worst_vertex: worst.map(|w| w.1),
+        worst_code: worst.map(|w| w.2),
         mean_abs_det_change: some(
             posed
                 .iter()

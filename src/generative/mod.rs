@@ -8,7 +8,7 @@
 //! - [`face`]: [`GenerativeFace`], the [`crate::drive::ActuationModel`] the editor and
 //!   session drive (N_A's code-independent first layer cached per face, f32 inference).
 //! - [`data`]: stage-1 data: training and held-out codes, per-element actuations from
-//!   [`crate::drive::fit`] on the rig's targets, cached on disk.
+//!   [`crate::model::fit`] on the rig's targets, cached on disk.
 //! - [`loss`]: the stage-1 loss and its gradient through all four networks.
 //! - [`train`]: the stage-1 training loop (Adam, linear decay, checkpoints, resume).
 //! - [`stage2`]: stage 2, fine-tuning through the simulator (surface loss, sensitivities).
@@ -47,7 +47,7 @@ pub use train::{
 };
 
 use crate::drive::DriveError;
-use crate::drive::fit::FitError;
+use crate::model::fit::FitError;
 use crate::mapping::MappingError;
 use crate::model::TargetError;
 use crate::model::file::FileError;

@@ -125,7 +125,7 @@ pub fn skin_points(face: &FaceModel) -> (Vec<usize>, Vec<SkinPoint>) {
                 bone,
                 embedded,
             } => (element, weights, embedded, bone),
-            Binding::Rigid(_) => continue,
+            Binding::Rigid(_) | Binding::Bones { .. } => continue,
         };
         index.push(i);
         points.push(SkinPoint {

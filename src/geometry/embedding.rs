@@ -26,6 +26,17 @@ pub struct Embedding {
 impl Embedding {
     /// Embeds `points` in `mesh`.
     pub fn new(mesh: &TetMesh, points: &[Point3<f64>]) -> Self {
+        Self::among(mesh, points, &|_, _| true)
+    }
+
+    /// Embeds each point `i` in the containing or nearest element `e` with `accept(i, e)`
+    /// (e.g. only the tissue on the point's side of the mouth slit); a point no element
+    /// accepts gets element 0 at infinite distance.
+    pub fn among(
+        mesh: &TetMesh,
+        points: &[Point3<f64>],
+        accept: &(dyn Fn(usize, u32) -> bool + Sync),
+    ) -> Self {
         let boxes: Vec<Box3> = mesh
             .tets
             .iter()
@@ -35,7 +46,8 @@ impl Embedding {
         let start_radius = 0.1 * mesh.diameter() / (mesh.element_count() as f64).cbrt().max(1.0);
         let located: Vec<(u32, [f64; 4], f64)> = points
             .par_iter()
-            .map(|p| locate(mesh, &tree, p, start_radius))
+            .enumerate()
+            .map(|(i, p)| locate(mesh, &tree, p, start_radius, &|e| accept(i, e)))
             .collect();
         Self {
             elements: located.iter().map(|l| l.0).collect(),
@@ -84,7 +96,7 @@ pub fn barycentric(mesh: &TetMesh, t: usize, p: &Point3<f64>) -> [f64; 4] {
 }
 
 /// Distance from `p` to tetrahedron `t` (0 inside).
-fn distance_to_tet(mesh: &TetMesh, t: usize, p: &Point3<f64>) -> f64 {
+pub fn distance_to_tet(mesh: &TetMesh, t: usize, p: &Point3<f64>) -> f64 {
     let w = barycentric(mesh, t, p);
     if w.iter().all(|&c| c >= 0.0) {
         return 0.0;
@@ -96,19 +108,22 @@ fn distance_to_tet(mesh: &TetMesh, t: usize, p: &Point3<f64>) -> f64 {
         .fold(f64::INFINITY, f64::min)
 }
 
-/// The containing (or else nearest) element of `p`: searches boxes of growing radius until a
-/// candidate is found, then once more out to that candidate's distance so none closer is missed.
+/// The containing (or else nearest) accepted element of `p`: searches boxes of growing
+/// radius until a candidate is found, then once more out to that candidate's distance so none
+/// closer is missed.
 fn locate(
     mesh: &TetMesh,
     tree: &BoxTree,
     p: &Point3<f64>,
     start_radius: f64,
+    accept: &dyn Fn(u32) -> bool,
 ) -> (u32, [f64; 4], f64) {
     let mut radius = start_radius;
     let mut candidates = Vec::new();
     let limit = mesh.diameter() * 4.0 + start_radius;
     loop {
         tree.overlapping(&Box3::around(&[*p], radius), &mut candidates);
+        candidates.retain(|&e| accept(e));
         if !candidates.is_empty() || radius > limit {
             break;
         }
@@ -121,9 +136,14 @@ fn locate(
             .min_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)))
             .unwrap_or((f64::INFINITY, 0))
     };
+    if candidates.is_empty() {
+        // Nothing accepted within reach of the growing boxes: every accepted element.
+        candidates = (0..mesh.element_count() as u32).filter(|&e| accept(e)).collect();
+    }
     let (mut distance, mut element) = nearest(&candidates);
-    if distance > radius {
+    if distance.is_finite() && distance > radius {
         tree.overlapping(&Box3::around(&[*p], distance), &mut candidates);
+        candidates.retain(|&e| accept(e));
         (distance, element) = nearest(&candidates);
     }
     (element, barycentric(mesh, element as usize, p), distance)

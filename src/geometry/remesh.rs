@@ -2,7 +2,9 @@
 //! multiresolution modeling"): split edges longer than `4/3·L`, collapse edges shorter than
 //! `4/5·L`, flip edges toward valence 6 (4 on borders), relax vertices tangentially and project
 //! them back onto the input surface. The result has near-equilateral triangles of edge length
-//! about `L`, which is what prism layers need to become well-shaped tetrahedra.
+//! about `L`, which is what prism layers need to become well-shaped tetrahedra. `L` may vary
+//! over the surface ([`remesh_sized`]: `L(p)` at each edge's midpoint), so curved parts such as
+//! the lips get small triangles and flat parts large ones.
 //!
 //! Borders are kept: border vertices only move along the border, border edges are only split
 //! or collapsed along the border, and interior edges joining two border vertices are never
@@ -36,6 +38,23 @@ pub fn remesh(
     settings: RemeshSettings,
     project: &dyn Fn(&Point3<f64>) -> Point3<f64>,
 ) -> Surface {
+    remesh_sized(
+        surface,
+        settings.iterations,
+        &|_| settings.edge_length,
+        project,
+    )
+}
+
+/// Remeshes `surface` toward the edge length `size(p)` (cm) around each point `p`; otherwise
+/// as [`remesh`]. `size` should change slowly (by much less than 1 per unit of distance) so
+/// that neighbouring triangles stay alike.
+pub fn remesh_sized(
+    surface: &Surface,
+    iterations: usize,
+    size: &dyn Fn(&Point3<f64>) -> f64,
+    project: &dyn Fn(&Point3<f64>) -> Point3<f64>,
+) -> Surface {
     let mut s = surface.clone();
     let borders: Vec<[Point3<f64>; 2]> = edge_map(&surface.triangles)
         .into_iter()
@@ -43,13 +62,11 @@ pub fn remesh(
         .map(|((a, b), _)| [surface.vertices[a as usize], surface.vertices[b as usize]])
         .collect();
     let project_border = |p: &Point3<f64>| closest_on_segments(&borders, p);
-    let (high, low) = (
-        4.0 / 3.0 * settings.edge_length,
-        4.0 / 5.0 * settings.edge_length,
-    );
-    for _ in 0..settings.iterations {
-        split_long_edges(&mut s, high);
-        collapse_short_edges(&mut s, low, high);
+    let high = |p: &Point3<f64>| 4.0 / 3.0 * size(p);
+    let low = |p: &Point3<f64>| 4.0 / 5.0 * size(p);
+    for _ in 0..iterations {
+        split_long_edges(&mut s, &high);
+        collapse_short_edges(&mut s, &low, &high);
         flip_edges(&mut s);
         relax(&mut s, project, &project_border);
     }
@@ -71,19 +88,16 @@ fn edge_map(triangles: &[[u32; 3]]) -> BTreeMap<(u32, u32), Vec<usize>> {
 
 /// Splits every edge longer than `high` at its midpoint, repeatedly, with the conforming
 /// 1-, 2- and 3-edge refinement patterns of each triangle.
-fn split_long_edges(s: &mut Surface, high: f64) {
+fn split_long_edges(s: &mut Surface, high: &dyn Fn(&Point3<f64>) -> f64) {
     for _ in 0..8 {
         let mut midpoint: BTreeMap<(u32, u32), u32> = BTreeMap::new();
         for tri in &s.triangles {
             for i in 0..3 {
                 let (a, b) = (tri[i], tri[(i + 1) % 3]);
                 let key = (a.min(b), a.max(b));
-                if !midpoint.contains_key(&key)
-                    && (s.vertices[a as usize] - s.vertices[b as usize]).norm() > high
-                {
-                    let m = Point3::from(
-                        (s.vertices[a as usize].coords + s.vertices[b as usize].coords) * 0.5,
-                    );
+                let (pa, pb) = (s.vertices[a as usize], s.vertices[b as usize]);
+                let m = Point3::from((pa.coords + pb.coords) * 0.5);
+                if !midpoint.contains_key(&key) && (pa - pb).norm() > high(&m) {
                     midpoint.insert(key, s.vertices.len() as u32);
                     s.vertices.push(m);
                 }
@@ -150,10 +164,14 @@ fn normal(p: [Point3<f64>; 3]) -> Vector3<f64> {
     (p[1] - p[0]).cross(&(p[2] - p[0]))
 }
 
-/// Collapses edges shorter than `low` where the result keeps the surface valid: the link
-/// condition holds, no new edge exceeds `high`, no triangle flips or degenerates, and borders
-/// are respected (see the module docs).
-fn collapse_short_edges(s: &mut Surface, low: f64, high: f64) {
+/// Collapses edges shorter than `low` (at their midpoint) where the result keeps the surface
+/// valid: the link condition holds, no new edge exceeds `high` (at its midpoint), no triangle
+/// flips or degenerates, and borders are respected (see the module docs).
+fn collapse_short_edges(
+    s: &mut Surface,
+    low: &dyn Fn(&Point3<f64>) -> f64,
+    high: &dyn Fn(&Point3<f64>) -> f64,
+) {
     let border = border_vertices(&s.triangles, s.vertices.len());
     let border_edges: std::collections::BTreeSet<(u32, u32)> = edge_map(&s.triangles)
         .into_iter()
@@ -174,7 +192,8 @@ fn collapse_short_edges(s: &mut Surface, low: f64, high: f64) {
             .copied()
             .filter(|t| inc[b].contains(t))
             .collect();
-        if shared.is_empty() || (s.vertices[a] - s.vertices[b]).norm() >= low {
+        let middle = Point3::from((s.vertices[a].coords + s.vertices[b].coords) * 0.5);
+        if shared.is_empty() || (s.vertices[a] - s.vertices[b]).norm() >= low(&middle) {
             continue;
         }
         // Decide which end survives.
@@ -208,10 +227,10 @@ fn collapse_short_edges(s: &mut Surface, low: f64, high: f64) {
         } else {
             s.vertices[keep]
         };
-        if nb
-            .iter()
-            .any(|&w| (s.vertices[w as usize] - target).norm() > high)
-        {
+        if nb.iter().any(|&w| {
+            let p = s.vertices[w as usize];
+            (p - target).norm() > high(&Point3::from((p.coords + target.coords) * 0.5))
+        }) {
             continue;
         }
         // No triangle of `gone` (besides the removed ones) may flip or degenerate.

@@ -3,7 +3,7 @@
 
 use std::path::Path;
 
-use nalgebra::Point3;
+use nalgebra::{Matrix3, Point3};
 use serde::{Deserialize, Serialize};
 
 use super::build::BuildReport;
@@ -16,9 +16,12 @@ use crate::sim::{Attachments, Bone, SimConfig, SimError, Simulator};
 /// The file format of face models; bump `version` whenever [`FaceModel`] changes shape.
 /// Version 2: skin outside the tissue that the rig never moves is [`Binding::Blended`] with
 /// the skull (version 1 extrapolated it from its nearest element, up to 7 cm away).
+/// Version 3: the lips' tissue is finer, the render surface is bound on its side of the mouth
+/// slit and chosen by the rig's shapes, and the deep mouth moves between the bones
+/// ([`Binding::Bones`]); version 2 bound the lower lip to the upper lip's tissue.
 pub const FACE_FORMAT: Format = Format {
     kind: "face",
-    version: 2,
+    version: 3,
 };
 
 /// How one vertex of the render surface follows the simulation.
@@ -42,6 +45,13 @@ pub enum Binding {
         bone: Bone,
         embedded: f64,
     },
+    /// Between the bones, where no tissue reaches (the deep mouth lining, the tongue): the
+    /// skull's motion plus a linear map `M` (`jaw`, fitted to the rig's jaw shapes) of the
+    /// jaw's motion relative to it, `p = T_skull(rest) + R_skull·M·R_skullᵀ·(T_jaw(rest) −
+    /// T_skull(rest))`: exact at rest, and the whole head moving carries it along. The lining
+    /// that joins the upper and lower gums stretches between them as the mouth opens, as the
+    /// rig stretches it, instead of staying with one bone and folding through the other.
+    Bones { jaw: Matrix3<f64> },
 }
 
 impl Binding {
@@ -51,7 +61,7 @@ impl Binding {
     pub fn element(&self) -> Option<u32> {
         match self {
             Binding::Embedded { element, .. } | Binding::Blended { element, .. } => Some(*element),
-            Binding::Rigid(_) => None,
+            Binding::Rigid(_) | Binding::Bones { .. } => None,
         }
     }
 
@@ -60,9 +70,22 @@ impl Binding {
         match self {
             Binding::Embedded { .. } => 1.0,
             Binding::Blended { embedded, .. } => *embedded,
-            Binding::Rigid(_) => 0.0,
+            Binding::Rigid(_) | Binding::Bones { .. } => 0.0,
         }
     }
+}
+
+/// `T_skull(rest) + R_skull·M·R_skullᵀ·(T_jaw(rest) − T_skull(rest))` for a jaw map `M`
+/// ([`Binding::Bones`]).
+pub fn between_bones(
+    jaw_map: &Matrix3<f64>,
+    bones: &crate::sim::BonePose,
+    pivot: &Point3<f64>,
+    rest: &Point3<f64>,
+) -> Point3<f64> {
+    let skull = bones.target(Bone::Skull, pivot, rest);
+    let turn = bones.skull.rotation_matrix();
+    skull + turn * jaw_map * turn.transpose() * (bones.target(Bone::Jaw, pivot, rest) - skull)
 }
 
 /// The artist's surface: a subset of the rig's vertices and the faces among them.
@@ -111,27 +134,40 @@ impl FaceModel {
             .bindings
             .iter()
             .zip(&self.render.rest)
-            .map(|(binding, rest)| match binding {
-                Binding::Embedded { element, weights } => {
-                    interpolate(&self.mesh.tets[*element as usize], weights, x)
-                }
-                Binding::Rigid(bone) => bones.target(*bone, &self.jaw_pivot, rest),
-                Binding::Blended {
-                    element,
-                    weights,
-                    bone,
-                    embedded,
-                } => {
-                    let rigid = bones.target(*bone, &self.jaw_pivot, rest);
-                    if *embedded == 0.0 {
-                        rigid
-                    } else {
-                        let soft = interpolate(&self.mesh.tets[*element as usize], weights, x);
-                        rigid + (soft - rigid) * *embedded
-                    }
-                }
-            })
+            .map(|(binding, rest)| self.bound_position(binding, rest, x, bones))
             .collect()
+    }
+
+    /// Where `binding` puts a render vertex resting at `rest`, for mesh positions `x` and bone
+    /// poses `bones`.
+    pub fn bound_position(
+        &self,
+        binding: &Binding,
+        rest: &Point3<f64>,
+        x: &[f64],
+        bones: &crate::sim::BonePose,
+    ) -> Point3<f64> {
+        match binding {
+            Binding::Embedded { element, weights } => {
+                interpolate(&self.mesh.tets[*element as usize], weights, x)
+            }
+            Binding::Rigid(bone) => bones.target(*bone, &self.jaw_pivot, rest),
+            Binding::Bones { jaw } => between_bones(jaw, bones, &self.jaw_pivot, rest),
+            Binding::Blended {
+                element,
+                weights,
+                bone,
+                embedded,
+            } => {
+                let rigid = bones.target(*bone, &self.jaw_pivot, rest);
+                if *embedded == 0.0 {
+                    rigid
+                } else {
+                    let soft = interpolate(&self.mesh.tets[*element as usize], weights, x);
+                    rigid + (soft - rigid) * *embedded
+                }
+            }
+        }
     }
 
     pub fn save(&self, path: &Path) -> Result<(), FileError> {

@@ -1,8 +1,12 @@
 //! Face models: built from a rig by the importer, stored in versioned files.
 
 pub mod build;
+pub mod audit;
+pub mod bindings;
+mod bone_motion;
 pub mod face;
 pub mod file;
+pub mod fit;
 pub mod targets;
 
 pub use build::{BuildError, BuildReport, BuildSettings, Lod, build_face};

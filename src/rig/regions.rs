@@ -185,6 +185,21 @@ pub fn check_regions(vertex_count: usize, faces: &Polygons) -> Result<(), Region
     Ok(())
 }
 
+/// The lip line: the face-skin vertices that mouth-socket faces share (the inner edge of the
+/// lips, where the skin turns into the mouth), sorted rig indices.
+pub fn lip_line(faces: &Polygons) -> Vec<usize> {
+    let socket = Region::MouthSocket.vertices();
+    let mut line: Vec<usize> = faces
+        .iter()
+        .filter(|f| f.iter().any(|&v| socket.contains(&(v as usize))))
+        .flat_map(|f| f.iter().map(|&v| v as usize))
+        .filter(|&v| Region::of_vertex(v) == Some(Region::FaceSkin))
+        .collect();
+    line.sort_unstable();
+    line.dedup();
+    line
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

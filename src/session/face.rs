@@ -27,7 +27,7 @@ pub struct FaceTopology {
     pub name: String,
     /// Render-surface triangles (indices into a frame's `positions`).
     pub triangles: Vec<[u32; 3]>,
-    /// Per render vertex: bound rigidly to a bone (teeth, gums, mouth interior) rather
+    /// Per render vertex: moved by the bones alone (teeth, gums, the deep mouth) rather
     /// than embedded in the tissue. The "teeth" toggle hides triangles made only of these.
     pub rigid: Vec<bool>,
     /// Unique edges of the simulation mesh's tetrahedra (indices into `mesh_positions`).
@@ -58,7 +58,7 @@ impl FaceTopology {
                 .render
                 .bindings
                 .iter()
-                .map(|b| matches!(b, Binding::Rigid(_)))
+                .map(|b| matches!(b, Binding::Rigid(_) | Binding::Bones { .. }))
                 .collect(),
             mesh_edges: edges,
             rest: model

@@ -17,6 +17,14 @@ pub struct FrameStats {
     pub iterations: usize,
     pub residual: f64,
     pub termination: Termination,
+    /// The solve reached its preset's tolerance. A frame that did not (it ran out of
+    /// iterations, or stalled at round-off above the tolerance) is shown as far as the
+    /// solver got and marked so in the editor, the protocol and the export report.
+    #[serde(default)]
+    pub converged: bool,
+    /// The solve from the last frame found no equilibrium and this one is from rest.
+    #[serde(default)]
+    pub from_rest: bool,
     /// Time in the solver, ms.
     pub solve_ms: f64,
     /// Codes → frame ready (actuation, solve, geometry, overlays), ms.
@@ -39,6 +47,8 @@ impl FrameStats {
             iterations: stats.iterations,
             residual: stats.residual,
             termination: stats.termination,
+            converged: stats.converged(),
+            from_rest: stats.from_rest || stats.contact.as_ref().is_some_and(|c| c.from_rest),
             solve_ms: stats.wall_time.as_secs_f64() * 1e3,
             total_ms,
             contacts: stats.contact.as_ref().map(|c| c.active_pairs),

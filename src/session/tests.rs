@@ -23,8 +23,9 @@ pub(crate) fn neutral_coarse() -> Arc<FaceModel> {
         .clone()
 }
 
-/// Test double: jawOpen rotates the jaw, mouthSmile_L contracts the tissue near the mouth
-/// along x, and mouthPucker ≥ 0.9 is refused (to exercise error frames).
+/// Test double: jawOpen rotates the jaw and stretches the tissue near the mouth along y (no
+/// tissue rides on the jaw: the rig's chin slides over it), mouthSmile_L contracts it along x,
+/// and mouthPucker ≥ 0.9 is refused (to exercise error frames).
 pub(crate) struct TestActuation {
     weights: Vec<f64>,
 }
@@ -69,12 +70,14 @@ impl ActuationModel for TestActuation {
             });
         }
         let smile = e.get("mouthSmile_L").unwrap() * (1.0 + 0.35 * codes.style.0[0]);
+        let open = e.get("jawOpen").unwrap();
         let tensors = self
             .weights
             .iter()
             .map(|w| {
                 let mut m = Matrix3::identity();
                 m[(0, 0)] = 1.0 - 0.3 * smile * w;
+                m[(1, 1)] = 1.0 + 0.2 * open * w;
                 SymTensor::from_matrix(&m)
             })
             .collect();
@@ -516,4 +519,44 @@ fn contact_on_keeps_the_rolled_lips_apart_in_the_session() {
     let g = s.submit(Request::Contact(false)).unwrap();
     let off = s.wait_generation(g, WAIT).unwrap();
     assert_eq!(off.stats.contacts, None);
+}
+
+/// The bundled sample's faces as the editor opens them (the actuation basis).
+fn sample_faces() -> Vec<SessionFace> {
+    crate::sample::Sample::load(
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(crate::sample::SAMPLE_DIR),
+    )
+    .unwrap()
+    .session_faces()
+}
+
+/// What the solver could not bring to an equilibrium is never presented as a frame of the
+/// preset: mouthClose alone at full weight presses the lips through each other, and without
+/// contact at the final preset its solve ends at the iteration cap with the net force far
+/// above the element forces, also from rest: an error frame with the last good geometry.
+/// At the interactive preset the same jump stops capped short of that: a frame, marked
+/// unconverged (the editor, the protocol and the export read `stats.converged`).
+#[test]
+fn a_solve_without_equilibrium_is_an_error_frame_and_a_capped_one_is_marked() {
+    let s = Session::new(sample_faces(), Quality::Final).unwrap();
+    s.submit_all(&[Request::Refine(false), Request::Contact(false)])
+        .unwrap();
+    let rest = s.wait_newer(None, WAIT).unwrap();
+    assert!(rest.error.is_none() && rest.stats.converged, "{:?}", rest.stats);
+    let g = s.submit(expression("mouthClose", 1.0)).unwrap();
+    let f = s.wait_generation(g, WAIT).unwrap();
+    let error = f.error.as_deref().unwrap_or_default();
+    assert!(error.contains("no equilibrium"), "{error:?}, {:?}", f.stats);
+    assert!(!f.stats.converged);
+    assert_eq!(f.positions, rest.positions, "the last good geometry");
+
+    let s = Session::new(sample_faces(), Quality::Interactive).unwrap();
+    s.submit_all(&[Request::Refine(false), Request::Contact(false)])
+        .unwrap();
+    s.wait_newer(None, WAIT).unwrap();
+    let g = s.submit(expression("mouthClose", 1.0)).unwrap();
+    let f = s.wait_generation(g, WAIT).unwrap();
+    assert!(f.error.is_none(), "{:?}", f.error);
+    assert_eq!(f.stats.termination, crate::sim::Termination::IterationCap);
+    assert!(!f.stats.converged, "{:?}", f.stats);
 }

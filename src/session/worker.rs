@@ -688,6 +688,8 @@ impl Worker {
                 iterations: 0,
                 residual: 0.0,
                 termination: crate::sim::Termination::Stalled,
+                converged: false,
+                from_rest: false,
                 solve_ms: 0.0,
                 total_ms: 0.0,
                 contacts: None,

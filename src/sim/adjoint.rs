@@ -185,16 +185,17 @@ impl Simulator {
             }
         }
         // The teeth on the jaw are barrier obstacles: ∇ₓ(κB) = Wᵀ∇_y(κB)(W·x, T(p)), so
-        // ∂∇ₓ(κB)/∂θ = Wᵀ·H_{y,r}·∂T(p_r)/∂θ and −λᵀ of it is −Σ_r (H·W·λ)_rᵀ·∂T(p_r)/∂θ.
+        // ∂∇ₓ(κB)/∂θ = Wᵀ·H_{y,r}·∂T(p_r)/∂θ and −λᵀ of it is −Σ_r (H·W·λ)_rᵀ·∂T(p_r)/∂θ;
+        // an obstacle between the bones moves by its jaw share β of the jaw's motion.
         if let Some(b) = &barrier {
             let h_lambda = b.contact_product(&lambda);
             for (i, binding) in b.face.bindings().iter().enumerate() {
-                if let crate::contact::face::ContactBinding::Rigid {
-                    bone: Bone::Jaw,
-                    rest,
-                } = binding
+                let factor = binding.jaw_factor(bones);
+                if let crate::contact::face::ContactBinding::Rigid { rest, .. }
+                | crate::contact::face::ContactBinding::Bones { rest, .. } = binding
+                    && factor != nalgebra::Matrix3::zeros()
                 {
-                    let jac = bones.jaw_target_jacobian(&self.config.jaw_pivot, rest);
+                    let jac = factor * bones.jaw_target_jacobian(&self.config.jaw_pivot, rest);
                     let hl =
                         Vector3::new(h_lambda[3 * i], h_lambda[3 * i + 1], h_lambda[3 * i + 2]);
                     let contribution = jac.transpose() * hl;

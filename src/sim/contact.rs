@@ -19,8 +19,10 @@
 //!   a step leaving the slack adds the pairs beyond the list's reach that the relative
 //!   motion since then can bring close; rebuilt once a vertex has moved far), filtered to
 //!   the pairs whose distance minus their relative motion is below d̂ — on the face a few
-//!   thousand of the ~10⁵ pairs whose boxes overlap. Additive CCD
-//!   over them caps the step so no pair ever reaches distance 0, and the barrier of every
+//!   thousand of the ~10⁵ pairs whose boxes overlap. The step filter of
+//!   [`crate::contact::planar`] over them caps the step so that every pair stays on its side
+//!   of its division plane, with a tenth of its distance kept (motion along the plane, lips
+//!   sliding over each other, is free), and the barrier of every
 //!   trial is evaluated over the same pairs (so no pair that comes within d̂ during the step
 //!   is missed). The broad-phase trees ([`crate::contact::FixedPrimitives`]) are prepared
 //!   once per pose: the teeth's (the bones are fixed during a solve) and the layout of the
@@ -41,14 +43,15 @@ use super::global_matrix::GlobalMatrix;
 use super::low_rank::Curvature;
 use crate::contact::barrier::{initial_barrier_stiffness, update_barrier_stiffness};
 use crate::contact::face::{ContactBinding, FaceContact};
+use crate::contact::planar::DEFAULT_KEEP;
 use crate::contact::{
-    BarrierPotential, Candidates, CcdOptions, Collisions, ContactError, FixedPrimitives,
-    HessianBlock, Projection, VerletList, collision_free_step_over,
+    BarrierPotential, Candidates, Collisions, ContactError, FixedPrimitives, HessianBlock,
+    Projection, VerletList, planar_step_over,
 };
 
 /// Longest move of a contact vertex in one line-search step (cm, ≈ 3.4·d̂ on the neutral
 /// face). Shorter than the 0.25 it was: the swept boxes of long steps overlap so many
-/// primitives that the broad phase and CCD cost more than the extra steps
+/// primitives that the broad phase and the step filter cost more than the extra steps
 /// (`facesim bench contact`: interactive 124× → 71× the contact-free frame, 30 → 15
 /// iterations; 0.05 stalls the interactive solve). Re-measured with the filtered Verlet
 /// lists: 0.05 left an interactive frame failing, 0.2 doubled the frame time.
@@ -70,9 +73,6 @@ const VERLET_REUSE: f64 = 8.0;
 /// the final preset (many short steps) 1.5× slower.
 const SHORT_STEPS_BEYOND: usize = 3;
 
-/// Advances per pair in the additive CCD; a capped pair keeps the (safe) time it reached.
-const CCD_MAX_ITERATIONS: u64 = 200;
-
 /// How contact-aware steps bring in the barrier's curvature.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
@@ -93,8 +93,8 @@ pub struct ContactStats {
     pub min_distance: f64,
     /// Barrier stiffness at the end.
     pub stiffness: f64,
-    /// Line-search steps that CCD shortened.
-    pub ccd_limited_steps: usize,
+    /// Line-search steps that the step filter ([`crate::contact::planar`]) shortened.
+    pub filter_limited_steps: usize,
     /// Bone-pose stages (1 unless moving the teeth straight to the new pose would cross a
     /// surface; then the pose is reached in collision-free stages).
     pub pose_stages: usize,
@@ -111,7 +111,7 @@ pub struct ContactStats {
     pub new_crossings: usize,
     /// Candidate lists built (the rest of the steps reused one).
     pub candidate_builds: usize,
-    /// Pairs that CCD and the line-search barrier checked, summed over steps (the pairs
+    /// Pairs that the step filter and the line-search barrier checked, summed over steps (the pairs
     /// that can come within d̂ during each step).
     #[serde(default)]
     pub candidate_pairs: usize,
@@ -120,8 +120,8 @@ pub struct ContactStats {
     pub broad_phase_time: Duration,
     /// Time evaluating the barrier (active sets, value, gradient, Hessian, PSD projection).
     pub barrier_time: Duration,
-    /// Time in continuous collision detection.
-    pub ccd_time: Duration,
+    /// Time filtering steps by the pairs' division planes ([`crate::contact::planar`]).
+    pub filter_time: Duration,
     /// Time in contact-aware linear algebra (the Woodbury LU or the refactorization, the
     /// extra solves).
     pub linear_time: Duration,
@@ -500,8 +500,8 @@ impl<'a> ContactSolve<'a> {
     /// list's pairs that can come within d̂ along it; a step leaving it adds the pairs beyond
     /// the list's reach that the relative motion since `y₀` can bring within d̂
     /// ([`VerletList::near_beyond`]: neighbours moving together are never visited). The list
-    /// is rebuilt when some vertex has moved farther than [`VERLET_REUSE`]·δ from `y₀`. CCD
-    /// and the trials' barrier then use only those pairs.
+    /// is rebuilt when some vertex has moved farther than [`VERLET_REUSE`]·δ from `y₀`. The
+    /// step filter and the trials' barrier then use only those pairs.
     pub(crate) fn max_step(&mut self, d: &[f64]) -> Result<f64, ContactError> {
         self.model.face.displacement(d, &mut self.dy);
         let longest = self
@@ -554,19 +554,10 @@ impl<'a> ContactSolve<'a> {
         self.stats.candidate_pairs += self.candidates.len();
         self.stats.broad_phase_time += t.elapsed();
         let t = Instant::now();
-        let report = collision_free_step_over(
-            mesh,
-            &self.candidates,
-            &self.y,
-            &swept,
-            &CcdOptions {
-                max_iterations: CCD_MAX_ITERATIONS,
-                ..CcdOptions::default()
-            },
-        )?;
-        self.stats.ccd_time += t.elapsed();
+        let report = planar_step_over(mesh, &self.candidates, &self.y, &swept, DEFAULT_KEEP)?;
+        self.stats.filter_time += t.elapsed();
         if report.step < 1.0 {
-            self.stats.ccd_limited_steps += 1;
+            self.stats.filter_limited_steps += 1;
         }
         Ok(cap * report.step)
     }
@@ -744,7 +735,7 @@ mod tests {
         let mut sim = model.simulator().unwrap();
         sim.set_contact(face).unwrap();
         sim.set_contact_gate(crate::sim::ContactGate::Always);
-        let settings = Quality::Interactive.settings();
+        let settings = Quality::Preview.settings();
         let pose = |press: f64, jaw_open: f64| MouthPose {
             press,
             purse: 0.5,
@@ -757,11 +748,16 @@ mod tests {
                 .contact
                 .unwrap()
         };
+        // A firm press, solved to convergence (the second solve continues the first).
         let mut state = sim.rest_state();
-        solve(&pose(1.0, 0.0), &mut state);
+        solve(&pose(0.3, 0.0), &mut state);
+        let settled = sim
+            .solve(&field.actuations(&pose(0.3, 0.0)), &pose(0.3, 0.0).bones(), &mut state, &settings)
+            .unwrap();
+        assert!(settled.converged(), "{:?}", settled.termination);
         assert!(state.contact_cache.is_some());
         let solved = state.clone();
-        let next = pose(1.05, 0.0);
+        let next = pose(0.303, 0.0);
         let contact = solve(&next, &mut state);
         assert!(contact.active_pairs > 0, "the test needs active contact");
         assert_eq!(contact.candidate_builds, 0, "the last solve's list serves");
@@ -772,7 +768,7 @@ mod tests {
         assert!(solve(&next, &mut cold).candidate_builds > 0);
         // The jaw moves on: the list built at the last pose serves the carried start and
         // the solve, and the result is crossing-free (checked by the solve).
-        assert_eq!(solve(&pose(1.05, 0.02), &mut state).new_crossings, 0);
+        assert_eq!(solve(&pose(0.303, 0.02), &mut state).new_crossings, 0);
     }
 
     /// Where the last solve ended (the next frame's linearization), a start takes its active

@@ -66,6 +66,17 @@ pub enum SimError {
     /// [`Simulator::solve`]).
     #[error("the bone pose could not be reached without crossing: {0}")]
     PoseUnreachable(String),
+    /// The solve ran out of iterations far from any equilibrium, also from rest (see
+    /// [`super::solver::FAILED_FACTOR`]).
+    #[error(
+        "no equilibrium found: the solve stopped at its iteration cap with residual {residual:.3e}, \
+         orders of magnitude above its tolerance, also when started from rest; the inputs ask \
+         for a shape the tissue cannot take"
+    )]
+    NoEquilibrium {
+        residual: f64,
+        stats: Box<super::solver::SolveStats>,
+    },
     #[error(
         "the contact surfaces intersect after the solve ({count} edge–triangle crossings): \
          a bug, since every step is collision-checked"

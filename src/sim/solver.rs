@@ -153,13 +153,38 @@ pub struct SolveStats {
     /// What contact did (`None` when contact was off or not set up).
     #[serde(default)]
     pub contact: Option<ContactStats>,
+    /// The solve from the given state failed ([`FAILED_FACTOR`]) and this is the solve
+    /// from rest that replaced it.
+    #[serde(default)]
+    pub from_rest: bool,
 }
 
 impl SolveStats {
     pub fn converged(&self) -> bool {
         self.termination == Termination::Converged
     }
+
+    /// Whether the solve was given the iterations to converge ([`CONVERGING_BUDGET`]) and ran
+    /// out of them far from any equilibrium: its residual above [`FAILED_FACTOR`] times its
+    /// tolerance.
+    pub fn failed(&self, settings: &SolveSettings) -> bool {
+        settings.max_iterations >= CONVERGING_BUDGET
+            && self.termination == Termination::IterationCap
+            && !(self.residual <= FAILED_FACTOR * settings.tolerance)
+    }
 }
+
+/// A solve given at least this many iterations (the final preset's 1,000) is asked for an
+/// equilibrium, not for a step toward one: the interactive and preview presets (30 and 100)
+/// show a capped frame as far as the solver got, marked unconverged, and refine it.
+pub const CONVERGING_BUDGET: usize = 500;
+
+/// A solve asked for an equilibrium ([`CONVERGING_BUDGET`]) that runs out of iterations with
+/// its residual still this many times its tolerance has found none, only a crumpled face: it
+/// is not a frame of the preset. [`Simulator::solve`] solves it again from rest, and reports
+/// [`SimError::NoEquilibrium`] if that fails too. At the final preset that is a residual above
+/// 10⁻² after 1,000 iterations (mouthClose alone without contact ends at 2.1).
+pub const FAILED_FACTOR: f64 = 1e4;
 
 /// Armijo sufficient-decrease constant.
 const ARMIJO: f64 = 1e-4;
@@ -321,7 +346,33 @@ impl Simulator {
         state: &mut SimState,
         settings: &SolveSettings,
     ) -> Result<SolveStats, SimError> {
-        on_worker(|| self.solve_on_worker(actuations, bones, state, settings))
+        on_worker(|| {
+            let warm = !self.at_rest(state);
+            let stats = self.solve_on_worker(actuations, bones, state, settings)?;
+            if !stats.failed(settings) {
+                return Ok(stats);
+            }
+            let retry = if warm {
+                *state = SimState {
+                    gate_backoff: state.gate_backoff,
+                    ..self.rest_state()
+                };
+                let mut again = self.solve_on_worker(actuations, bones, state, settings)?;
+                again.from_rest = true;
+                again.wall_time += stats.wall_time;
+                again
+            } else {
+                stats
+            };
+            if retry.failed(settings) {
+                Err(SimError::NoEquilibrium {
+                    residual: retry.residual,
+                    stats: Box::new(retry),
+                })
+            } else {
+                Ok(retry)
+            }
+        })
     }
 
     fn solve_on_worker(
@@ -443,7 +494,7 @@ impl Simulator {
     ) -> Result<SolveStats, SimError> {
         let start = Instant::now();
 
-        // Reach the new pose in stages that CCD certifies free of crossings, each starting
+        // Reach the new pose in stages the step filter certifies free of crossings, each starting
         // with the tissue carried along with the bones when that is certified too (see
         // `staging`), solving after each.
         let from = state.bones;
@@ -481,9 +532,9 @@ impl Simulator {
                     if let Some(start) = self.stage_start(&carrier, &state.x, &pose, gap)? {
                         break Some(start);
                     }
-                    // Bisection: the fraction CCD certifies is far more cautious (it keeps a
-                    // tenth of every gap), so jumping to it made more, shorter stages
-                    // (measured: a random code then exceeded the stage limit).
+                    // Bisection: jumping to the fraction a certificate allows (it keeps part of
+                    // every gap) made more, shorter stages (measured with CCD: a random code
+                    // then exceeded the stage limit).
                     s = reached + 0.5 * (s - reached);
                     if s - reached < shortest {
                         return Err(SimError::PoseUnreachable(
@@ -773,6 +824,7 @@ impl Simulator {
             iteration_time,
             near_folding,
             contact,
+            from_rest: false,
         };
         if let Some(&first) = inverted.first() {
             return Err(SimError::Inverted {
@@ -835,12 +887,12 @@ fn merge_stages(
     history.extend_from_slice(&last.energy_history);
     last.energy_history = history;
     if let (Some(c), Some(ec)) = (last.contact.as_mut(), e.contact) {
-        c.ccd_limited_steps += ec.ccd_limited_steps;
+        c.filter_limited_steps += ec.filter_limited_steps;
         c.candidate_builds += ec.candidate_builds;
         c.candidate_pairs += ec.candidate_pairs;
         c.broad_phase_time += ec.broad_phase_time;
         c.barrier_time += ec.barrier_time;
-        c.ccd_time += ec.ccd_time;
+        c.filter_time += ec.filter_time;
         c.linear_time += ec.linear_time;
     }
 }

@@ -213,7 +213,7 @@ impl Simulator {
                 for &c in &pair {
                     match &face.bindings()[c as usize] {
                         ContactBinding::Embedded { tet, .. } => tissue.extend_from_slice(tet),
-                        ContactBinding::Rigid { bone: on, .. } => bone = Some(*on),
+                        other => bone = other.bone(),
                     }
                 }
                 grew |= clusters.join(&tissue, bone);
@@ -796,8 +796,9 @@ mod tests {
     /// bundled sample: the jaw swings 0.14 and then 0.24 rad (with 0.45 cm translations),
     /// and the second frame used to fail with "more than 64 collision-free stages" after
     /// 78 s. Both must solve with contact, crossing- and fold-free, in a few stages that
-    /// carry the tissue along. On the way: the carry of a pure translation of the head is
-    /// that translation, contact curvature and the teeth's push included.
+    /// carry the tissue along (10 and 20 on the sample of face format 3, whose lips have
+    /// 0.3 cm elements). On the way: the carry of a pure translation of the head is that
+    /// translation, contact curvature and the teeth's push included.
     #[test]
     fn large_jaw_swings_solve_in_few_carried_stages() {
         let (sim, actuation) = sample_sim();
@@ -816,7 +817,7 @@ mod tests {
                     stats.wall_time.as_secs_f64()
                 );
                 assert!(
-                    c.pose_stages <= 16,
+                    c.pose_stages <= 24,
                     "frame {frame}: {} stages",
                     c.pose_stages
                 );

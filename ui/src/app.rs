@@ -261,7 +261,7 @@ impl EditorApp {
                 if f.stats.reused {
                     ui.label("same inputs: the last solve reused");
                 }
-                if f.error.is_none() && f.stats.termination != Termination::Converged {
+                if f.error.is_none() && !f.stats.converged {
                     ui.label(
                         RichText::new(format!(
                             "not converged ({:?}): shown as far as the solver got",

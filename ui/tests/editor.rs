@@ -146,3 +146,58 @@ fn the_mapping_heatmap_colours_the_identity_on_screen() {
         "the heatmap must colour the skin ({changed} pixels differ)"
     );
 }
+
+/// At jawOpen = 1 the artist sees an open mouth: the teeth and the mouth's inside show
+/// between the lips. Hiding them (the "teeth" toggle) changes the picture there, where a sheet
+/// of stretched skin used to cover the opening (the lower lip's centre bound to the upper
+/// lip's tissue); with the lips closed it changes almost nothing. The picture is written to
+/// `target/editor-jaw-open.png` to be looked at.
+#[test]
+fn at_full_jaw_opening_the_mouth_shows_the_teeth() {
+    let session: Arc<dyn SessionHandle> =
+        Arc::new(Session::new(sample(), Quality::Interactive).unwrap());
+    let mut harness = Harness::builder()
+        .with_size(egui::vec2(1200.0, 800.0))
+        .wgpu()
+        .build_eframe(|cc| EditorApp::new(cc, session.clone()));
+    wait_for(&mut harness, |app| app.last_frame.is_some());
+    harness.run_steps(3);
+    let mut inside_shown = |harness: &mut Harness<'_, EditorApp>| {
+        let with = harness.render().expect("software rendering");
+        harness.state_mut().toggles.teeth = false;
+        harness.run_steps(3);
+        let without = harness.render().expect("software rendering");
+        harness.state_mut().toggles.teeth = true;
+        harness.run_steps(3);
+        (pixels_changed(with.as_raw(), without.as_raw()), with)
+    };
+    let (closed, _) = inside_shown(&mut harness);
+    harness
+        .get_by_role_and_label(egui::accesskit::Role::Slider, "jawOpen")
+        .set_value_accesskit(1.0);
+    harness.step();
+    wait_for(&mut harness, |app| {
+        app.last_frame.as_ref().is_some_and(|f| {
+            f.codes.expression.get("jawOpen") == Some(1.0) && f.quality == Quality::Final
+        })
+    });
+    harness.run_steps(3);
+    let frame = harness.state().last_frame.clone().unwrap();
+    assert!(frame.error.is_none(), "{:?}", frame.error);
+    let (open, picture) = inside_shown(&mut harness);
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("..")
+        .join("target")
+        .join("editor-jaw-open.png");
+    picture.save(&path).expect("writing the picture");
+    assert!(
+        closed < 500,
+        "with the lips closed the mouth's inside is hidden ({closed} pixels show it)"
+    );
+    assert!(
+        open > 8000,
+        "at jawOpen = 1 the open mouth shows the teeth and the mouth's inside ({open} pixels \
+         do; closed: {closed}); see {}",
+        path.display()
+    );
+}

@@ -80,6 +80,9 @@ struct SkinAnchor {
     /// Render vertices of the triangle and barycentric weights.
     triangle: [u32; 3],
     weights: [f64; 3],
+    /// The vertex's rest position minus its point on the triangle (0 on the skin, up to
+    /// [`LINING_CONTACT`] off the lining), kept in every target so the rest fits exactly.
+    offset: Vector3<f64>,
 }
 
 /// The fit of one face, set up once (matrix factored) and reused for every target.
@@ -178,7 +181,7 @@ impl<'a> ActuationFitter<'a> {
             .anchors
             .iter()
             .map(|a| {
-                let p = (0..3).fold(Vector3::zeros(), |s, k| {
+                let p = (0..3).fold(a.offset, |s, k| {
                     s + target.render[a.triangle[k] as usize].coords * a.weights[k]
                 });
                 Point3::from(p)
@@ -301,39 +304,60 @@ fn stretch(f: &Matrix3<f64>, guess: &UnitQuaternion<f64>, min_stretch: f64) -> (
     (SymTensor::from_matrix(&m), true)
 }
 
-/// The free simulation skin vertices and where each sits on the render skin at rest.
+/// Tissue vertices this close (cm) to the mouth lining at rest sit on it: the inner side of
+/// the lips and cheeks, where the tissue layer stops just short of the lining.
+pub const LINING_CONTACT: f64 = 0.1;
+
+/// The free simulation vertices the target pulls and where each sits on the render surface
+/// at rest: every free skin vertex on the skin, and the free tissue vertices within
+/// [`LINING_CONTACT`] of the mouth lining on the lining (so the inside of the lips rolls and
+/// the cheeks' lining moves as the rig moves them, not only the outside).
 fn skin_anchors(face: &FaceModel, bones: &[Option<Bone>]) -> Vec<SkinAnchor> {
     let render = &face.render;
-    let skin_triangles: Vec<[u32; 3]> = render
-        .triangles
-        .iter()
-        .copied()
-        .filter(|t| {
-            t.iter().all(|&v| {
-                Region::of_vertex(render.rig_vertices[v as usize] as usize)
-                    == Some(Region::FaceSkin)
+    let triangles_of = |region: Region| -> Vec<[u32; 3]> {
+        render
+            .triangles
+            .iter()
+            .copied()
+            .filter(|t| {
+                t.iter()
+                    .all(|&v| Region::of_vertex(render.rig_vertices[v as usize] as usize) == Some(region))
             })
-        })
-        .collect();
-    let index = TriangleIndex::new(&render.rest, &skin_triangles);
+            .collect()
+    };
+    let (skin_triangles, lining_triangles) =
+        (triangles_of(Region::FaceSkin), triangles_of(Region::MouthSocket));
+    let (skin, lining) = (
+        TriangleIndex::new(&render.rest, &skin_triangles),
+        TriangleIndex::new(&render.rest, &lining_triangles),
+    );
     let mut on_skin = vec![false; face.mesh.vertex_count()];
     for t in &face.skin_triangles {
         for &v in t {
             on_skin[v as usize] = true;
         }
     }
+    let anchor = |v: usize, (q, t): (Point3<f64>, u32), triangles: &[[u32; 3]]| {
+        let triangle = triangles[t as usize];
+        let corners = triangle.map(|i| render.rest[i as usize]);
+        let weights = barycentric(&q, &corners);
+        let on = (0..3).fold(Vector3::zeros(), |s, k| s + corners[k].coords * weights[k]);
+        SkinAnchor {
+            vertex: v as u32,
+            triangle,
+            weights,
+            offset: face.mesh.vertices[v].coords - on,
+        }
+    };
     (0..face.mesh.vertex_count())
-        .filter(|&v| on_skin[v] && bones[v].is_none())
+        .filter(|&v| bones[v].is_none())
         .filter_map(|v| {
             let p = face.mesh.vertices[v];
-            let (q, t) = index.closest_point(&p)?;
-            let triangle = skin_triangles[t as usize];
-            let weights = barycentric(&q, &triangle.map(|i| render.rest[i as usize]));
-            Some(SkinAnchor {
-                vertex: v as u32,
-                triangle,
-                weights,
-            })
+            if on_skin[v] {
+                return Some(anchor(v, skin.closest_point(&p)?, &skin_triangles));
+            }
+            let hit = lining.closest_point(&p)?;
+            ((hit.0 - p).norm() <= LINING_CONTACT).then(|| anchor(v, hit, &lining_triangles))
         })
         .collect()
 }
