@@ -258,7 +258,9 @@ pub fn bench_shapes(args: &ShapesArgs) -> Result<()> {
         if !args.faces.is_empty() && !args.faces.contains(&face.name) {
             continue;
         }
-        let actuation = networks.as_ref().map_or(face.actuation.as_ref(), |n| n[i].as_ref());
+        let actuation = networks
+            .as_ref()
+            .map_or(face.actuation.as_ref(), |n| n[i].as_ref());
         let measured = shapes::MeasuredFace {
             name: &face.name,
             model: &face.model,

@@ -366,6 +366,7 @@ fn bench_editor(
         for contact in std::iter::once(false).chain(contact.then_some(true)) {
             rows.extend(facesim::bench::editor::bench_latency(
                 face.clone(),
+                &facesim::sim::Quality::ALL,
                 &sliders,
                 steps,
                 contact,

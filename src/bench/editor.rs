@@ -41,17 +41,18 @@ pub fn drag(slider: &str, steps: usize) -> Vec<ExpressionCode> {
         .collect()
 }
 
-/// Latency rows for `face` at every preset, contact on or off; `sliders` are dragged one
-/// after another.
+/// Latency rows for `face` at each of `presets`, contact on or off; `sliders` are dragged
+/// one after another.
 pub fn bench_latency(
     face: SessionFace,
+    presets: &[Quality],
     sliders: &[&str],
     steps: usize,
     contact: bool,
 ) -> Result<Vec<LatencyRow>, SessionError> {
     let name = face.name.clone();
     let mut rows = Vec::new();
-    for quality in Quality::ALL {
+    for &quality in presets {
         let session = Session::new(vec![face.clone()], quality)?;
         session.submit(Request::Refine(false))?;
         session.submit(Request::Contact(contact))?;
@@ -125,7 +126,7 @@ mod tests {
     #[test]
     fn latency_rows_cover_every_preset() {
         let face = crate::session::tests::test_face("neutral");
-        let rows = bench_latency(face, &["jawOpen"], 4, false).unwrap();
+        let rows = bench_latency(face, &Quality::ALL, &["jawOpen"], 4, false).unwrap();
         assert_eq!(rows.len(), 3);
         assert!(
             rows.iter()
@@ -135,12 +136,15 @@ mod tests {
     }
 
     /// With contact on, every frame of the drag comes back valid (the solver's crossing
-    /// check passed) and the rows say contact was on.
+    /// check passed) and the rows say contact was on. The editor's own preset only: contact
+    /// on the format-3 face costs seconds a frame at the others (see
+    /// docs/performance/contact.md).
     #[test]
     fn latency_rows_with_contact_on() {
         let face = crate::session::tests::test_face("neutral");
-        let rows = bench_latency(face, &["mouthSmile_L"], 4, true).unwrap();
-        assert_eq!(rows.len(), 3);
+        let rows =
+            bench_latency(face, &[Quality::Interactive], &["mouthSmile_L"], 4, true).unwrap();
+        assert_eq!(rows.len(), 1);
         assert!(
             rows.iter()
                 .all(|r| r.contact && r.samples == 4 && r.errors == 0)

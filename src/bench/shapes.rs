@@ -124,7 +124,8 @@ pub fn measure(
             rig_crossing_pieces: Vec::new(),
         };
         let rig_crossings = audit.audit(model, &goal.render);
-        (row.rig_crossings, row.rig_crossing_pieces) = (rig_crossings.pairs, rig_crossings.by_pieces);
+        (row.rig_crossings, row.rig_crossing_pieces) =
+            (rig_crossings.pairs, rig_crossings.by_pieces);
         let actuation = face
             .actuation
             .actuate(&codes)

@@ -387,8 +387,11 @@ mod tests {
 
     /// The coarse sample face against itself: the final preset with contact lands near the
     /// reference, the interactive one no nearer, and every row with contact on solves every
-    /// frame intersection-free.
+    /// frame intersection-free. Ignored in the default run: on the format-3 face its contact
+    /// rows take more than 8 minutes on 2 cores (docs/performance/contact.md); run it with
+    /// `cargo test --release -p facesim --lib the_trade_table -- --ignored`.
     #[test]
+    #[ignore = "contact on the format-3 face: more than 8 minutes on 2 cores"]
     fn the_trade_table_measures_each_configuration_against_the_reference() {
         let sample = crate::sample::Sample::load(
             std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(crate::sample::SAMPLE_DIR),

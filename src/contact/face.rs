@@ -71,7 +71,10 @@ pub enum ContactBinding {
     Rigid { bone: Bone, rest: Point3<f64> },
     /// Between the bones (the deep mouth lining), by its jaw map
     /// ([`crate::model::face::between_bones`]).
-    Bones { jaw: Matrix3<f64>, rest: Point3<f64> },
+    Bones {
+        jaw: Matrix3<f64>,
+        rest: Point3<f64>,
+    },
 }
 
 impl ContactBinding {
@@ -92,7 +95,9 @@ impl ContactBinding {
     /// turned with the head between the bones, 0 on the skull or in the tissue.
     pub fn jaw_factor(&self, bones: &BonePose) -> Matrix3<f64> {
         match *self {
-            ContactBinding::Rigid { bone: Bone::Jaw, .. } => Matrix3::identity(),
+            ContactBinding::Rigid {
+                bone: Bone::Jaw, ..
+            } => Matrix3::identity(),
             ContactBinding::Bones { jaw, .. } => {
                 let turn = bones.skull.rotation_matrix();
                 turn * jaw * turn.transpose()

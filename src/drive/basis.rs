@@ -11,9 +11,9 @@ use nalgebra::{Matrix3, SymmetricEigen};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::model::fit::{ActuationFitter, FitError, FitSettings};
 use super::{Actuation, ActuationModel, Codes, DriveError};
 use crate::model::file::{self, FileError, Format};
+use crate::model::fit::{ActuationFitter, FitError, FitSettings};
 use crate::model::{FaceModel, TargetError, shape_target};
 use crate::rig::style::STYLE_SHAPES;
 use crate::rig::{ExpressionCode, FaceRig};

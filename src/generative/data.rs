@@ -23,9 +23,9 @@ use serde::{Deserialize, Serialize};
 use super::GenerativeError;
 use crate::drive::Codes;
 use crate::drive::basis::log_tensor;
-use crate::model::fit::{ActuationFitter, FitSettings};
 use crate::model::FaceModel;
 use crate::model::file::{self, Format};
+use crate::model::fit::{ActuationFitter, FitSettings};
 use crate::rig::{ExpressionCode, FaceRig, StyleCode};
 
 /// The file format of cached poses; bump `version` when [`FacePoses`] changes shape or the

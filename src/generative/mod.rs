@@ -47,10 +47,10 @@ pub use train::{
 };
 
 use crate::drive::DriveError;
-use crate::model::fit::FitError;
 use crate::mapping::MappingError;
 use crate::model::TargetError;
 use crate::model::file::FileError;
+use crate::model::fit::FitError;
 use crate::nn::NnError;
 use crate::sim::SimError;
 

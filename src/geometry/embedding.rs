@@ -138,7 +138,9 @@ fn locate(
     };
     if candidates.is_empty() {
         // Nothing accepted within reach of the growing boxes: every accepted element.
-        candidates = (0..mesh.element_count() as u32).filter(|&e| accept(e)).collect();
+        candidates = (0..mesh.element_count() as u32)
+            .filter(|&e| accept(e))
+            .collect();
     }
     let (mut distance, mut element) = nearest(&candidates);
     if distance.is_finite() && distance > radius {

@@ -53,7 +53,12 @@ impl CrossingAudit {
         let audited = |v: u32| {
             matches!(
                 pieces[v as usize],
-                Some(Region::FaceSkin | Region::MouthSocket | Region::UpperTeeth | Region::LowerTeeth)
+                Some(
+                    Region::FaceSkin
+                        | Region::MouthSocket
+                        | Region::UpperTeeth
+                        | Region::LowerTeeth
+                )
             )
         };
         let triangles: Vec<[u32; 3]> = render

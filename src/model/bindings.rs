@@ -31,9 +31,9 @@ use super::targets::{TargetError, shape_target};
 use crate::geometry::bvh::{Box3, BoxTree};
 use crate::geometry::embedding::{Embedding, barycentric, distance_to_tet};
 use crate::geometry::shell::Shell;
+use crate::rig::regions::lip_line;
 use crate::rig::style::STYLE_SHAPES;
 use crate::rig::surface::{EdgeSet, SurfaceTopology};
-use crate::rig::regions::lip_line;
 use crate::rig::{ExpressionCode, FaceRig, Region};
 use crate::sim::{Bone, BonePose};
 
@@ -456,10 +456,12 @@ fn count_bindings(face: &FaceModel, report: &mut BindingReport) {
         .iter()
         .zip(&face.render.rest)
         .filter_map(|(b, p)| match b {
-            Binding::Embedded { element, .. } => Some(distance_to_tet(&face.mesh, *element as usize, p)),
-            Binding::Blended { element, embedded, .. } if *embedded > 0.0 => {
+            Binding::Embedded { element, .. } => {
                 Some(distance_to_tet(&face.mesh, *element as usize, p))
             }
+            Binding::Blended {
+                element, embedded, ..
+            } if *embedded > 0.0 => Some(distance_to_tet(&face.mesh, *element as usize, p)),
             _ => None,
         })
         .fold(0.0, f64::max);
@@ -508,7 +510,10 @@ mod tests {
                 _ => {}
             }
         }
-        (skin, lining.iter().sum::<f64>() / lining.len().max(1) as f64)
+        (
+            skin,
+            lining.iter().sum::<f64>() / lining.len().max(1) as f64,
+        )
     }
 
     /// The lower lip and the chin, which the rig opens with the jaw by 3 cm and more (the
@@ -522,7 +527,11 @@ mod tests {
     #[test]
     fn the_lower_lip_rides_on_the_jaws_side_of_the_mouth_slit() {
         let (skin, lining) = jaw_opening_errors(coarse_face(None));
-        assert!(skin.len() > 300, "{} skin vertices open with the jaw", skin.len());
+        assert!(
+            skin.len() > 300,
+            "{} skin vertices open with the jaw",
+            skin.len()
+        );
         for v in [6380, 6442, 6450, 6513] {
             assert!(skin.iter().any(|s| s.0 == v), "rig vertex {v} opens");
         }
@@ -537,11 +546,18 @@ mod tests {
         let coarse = crate::model::build_face(rig(), None, &settings).unwrap();
         let (skin, _) = jaw_opening_errors(&coarse);
         let across = skin.iter().filter(|s| s.2 > 2.0).count();
-        assert!(across > 10, "{across} vertices ride on the upper lip's tissue");
+        assert!(
+            across > 10,
+            "{across} vertices ride on the upper lip's tissue"
+        );
         // The lower lip's centre: 3–6 mm off on its side, 37–40 mm on its nearest element.
         let centre = |v: &u32| [6380, 6442, 6513].contains(v);
         for &(v, error, euclidean) in skin.iter().filter(|s| centre(&s.0)) {
-            assert!(euclidean > 3.0, "rig vertex {v}: {:.1} mm", 10.0 * euclidean);
+            assert!(
+                euclidean > 3.0,
+                "rig vertex {v}: {:.1} mm",
+                10.0 * euclidean
+            );
             assert!(
                 error < 0.7,
                 "rig vertex {v} is {:.1} mm off ({:.1} mm on its nearest element)",
@@ -576,5 +592,4 @@ mod tests {
             assert!(slope.abs() < 1e-5, "slope {slope} at {d}");
         }
     }
-
 }

@@ -27,9 +27,9 @@ use crate::geometry::remesh::{Surface, min_angles, remesh_sized};
 use crate::geometry::shell::{ShellError, extrude, quality, smooth_directions, vertex_normals};
 use crate::geometry::triangles::{border_vertices, compact, gather, used_count};
 use crate::rig::jaw::estimate_pivot;
+use crate::rig::regions::lip_line;
 use crate::rig::repair::{RepairSettings, repair_self_intersections};
 use crate::rig::surface::{EdgeSet, SurfaceTopology};
-use crate::rig::regions::lip_line;
 use crate::rig::{FaceRig, Region};
 use crate::sim::{Attachments, Bone};
 
@@ -424,9 +424,11 @@ pub fn build_face(
         .map(|v| {
             let inner = shell.mesh.vertices[shell.vertex(shell.layers, v)];
             match motion.bone_of(origin[v]) {
-                _ if pinned[v] => {
-                    Some(motion.bone_of(origin[v]).unwrap_or(motion.nearest_bone(origin[v])))
-                }
+                _ if pinned[v] => Some(
+                    motion
+                        .bone_of(origin[v])
+                        .unwrap_or(motion.nearest_bone(origin[v])),
+                ),
                 _ if within(&lining, &inner, LINING_CONTACT) => None,
                 Some(Bone::Jaw) if within(&mouth, &inner, ON_MOUTH) => None,
                 b => b,
@@ -545,7 +547,10 @@ fn hold_loose_islands(
     }
     for t in triangles {
         for k in 1..3 {
-            let (a, b) = (root(&mut parent, t[0] as usize), root(&mut parent, t[k] as usize));
+            let (a, b) = (
+                root(&mut parent, t[0] as usize),
+                root(&mut parent, t[k] as usize),
+            );
             parent[a.max(b)] = a.min(b);
         }
     }
@@ -810,7 +815,10 @@ mod tests {
         };
         let (far, band) = (blended(true), blended(false));
         assert!(far.len() > 500, "{} skin vertices far out", far.len());
-        assert!(far.iter().all(|&i| outside(i) >= settings.skin_rigid_distance));
+        assert!(
+            far.iter()
+                .all(|&i| outside(i) >= settings.skin_rigid_distance)
+        );
         assert!(band.len() > 100, "{} blended skin vertices", band.len());
         assert_eq!(model.report.bindings.skin_on_bone_vertices, far.len());
         assert_eq!(model.report.bindings.blended_vertices, band.len());
@@ -931,7 +939,12 @@ mod tests {
                 "{}: {q:?}",
                 model.name
             );
-            assert!(r.bindings.skin_max_error <= 0.5, "{}: {:?}", model.name, r.bindings);
+            assert!(
+                r.bindings.skin_max_error <= 0.5,
+                "{}: {:?}",
+                model.name,
+                r.bindings
+            );
             let (_, state, _) = solved_at_rest(model);
             assert_eq!(state.positions(), model.mesh.vertices, "{}", model.name);
         }

@@ -320,13 +320,16 @@ fn skin_anchors(face: &FaceModel, bones: &[Option<Bone>]) -> Vec<SkinAnchor> {
             .iter()
             .copied()
             .filter(|t| {
-                t.iter()
-                    .all(|&v| Region::of_vertex(render.rig_vertices[v as usize] as usize) == Some(region))
+                t.iter().all(|&v| {
+                    Region::of_vertex(render.rig_vertices[v as usize] as usize) == Some(region)
+                })
             })
             .collect()
     };
-    let (skin_triangles, lining_triangles) =
-        (triangles_of(Region::FaceSkin), triangles_of(Region::MouthSocket));
+    let (skin_triangles, lining_triangles) = (
+        triangles_of(Region::FaceSkin),
+        triangles_of(Region::MouthSocket),
+    );
     let (skin, lining) = (
         TriangleIndex::new(&render.rest, &skin_triangles),
         TriangleIndex::new(&render.rest, &lining_triangles),

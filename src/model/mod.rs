@@ -1,9 +1,9 @@
 //! Face models: built from a rig by the importer, stored in versioned files.
 
-pub mod build;
 pub mod audit;
 pub mod bindings;
 mod bone_motion;
+pub mod build;
 pub mod face;
 pub mod file;
 pub mod fit;

@@ -542,7 +542,11 @@ fn a_solve_without_equilibrium_is_an_error_frame_and_a_capped_one_is_marked() {
     s.submit_all(&[Request::Refine(false), Request::Contact(false)])
         .unwrap();
     let rest = s.wait_newer(None, WAIT).unwrap();
-    assert!(rest.error.is_none() && rest.stats.converged, "{:?}", rest.stats);
+    assert!(
+        rest.error.is_none() && rest.stats.converged,
+        "{:?}",
+        rest.stats
+    );
     let g = s.submit(expression("mouthClose", 1.0)).unwrap();
     let f = s.wait_generation(g, WAIT).unwrap();
     let error = f.error.as_deref().unwrap_or_default();

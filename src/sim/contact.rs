@@ -752,7 +752,12 @@ mod tests {
         let mut state = sim.rest_state();
         solve(&pose(0.3, 0.0), &mut state);
         let settled = sim
-            .solve(&field.actuations(&pose(0.3, 0.0)), &pose(0.3, 0.0).bones(), &mut state, &settings)
+            .solve(
+                &field.actuations(&pose(0.3, 0.0)),
+                &pose(0.3, 0.0).bones(),
+                &mut state,
+                &settings,
+            )
             .unwrap();
         assert!(settled.converged(), "{:?}", settled.termination);
         assert!(state.contact_cache.is_some());

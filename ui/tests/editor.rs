@@ -195,7 +195,9 @@ fn at_full_jaw_opening_the_mouth_shows_the_teeth() {
         "with the lips closed the mouth's inside is hidden ({closed} pixels show it)"
     );
     assert!(
-        open > 8000,
+        // The opening is ~95 × 75 pixels of this 1200 × 800 view (~5,000 show the inside
+        // at the bundled neutral); a skin sheet over it shows none, closed lips ~100.
+        open > 2500,
         "at jawOpen = 1 the open mouth shows the teeth and the mouth's inside ({open} pixels \
          do; closed: {closed}); see {}",
         path.display()

@@ -74,6 +74,15 @@ fn closest_points(kind: CollisionKind, x: &[Vec3; 4]) -> (Vec3, Vec3) {
 /// Detection*, §5.1.5: Voronoi regions of the vertices, then the edges, then the face).
 fn closest_on_triangle(p: &Vec3, a: &Vec3, b: &Vec3, c: &Vec3) -> Vec3 {
     let (ab, ac, ap) = (b - a, c - a, p - a);
+    if !(ab.cross(&ac).norm_squared() > 1e-14 * ab.norm_squared() * ac.norm_squared()) {
+        // Degenerate (zero-area, to rounding) triangle: the closest of its three edges. The
+        // Voronoi tests below divide by its area.
+        return [(a, b), (b, c), (c, a)]
+            .iter()
+            .map(|(u, v)| closest_on_segment(p, u, v))
+            .min_by(|u, v| (u - p).norm_squared().total_cmp(&(v - p).norm_squared()))
+            .expect("three edges");
+    }
     let (d1, d2) = (ab.dot(&ap), ac.dot(&ap));
     if d1 <= 0.0 && d2 <= 0.0 {
         return *a;
@@ -101,14 +110,6 @@ fn closest_on_triangle(p: &Vec3, a: &Vec3, b: &Vec3, c: &Vec3) -> Vec3 {
         return b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6)));
     }
     let denom = va + vb + vc;
-    if !(denom.abs() > 0.0) {
-        // Degenerate (zero-area) triangle: the closest of its three edges.
-        return [(a, b), (b, c), (c, a)]
-            .iter()
-            .map(|(u, v)| closest_on_segment(p, u, v))
-            .min_by(|u, v| (u - p).norm_squared().total_cmp(&(v - p).norm_squared()))
-            .expect("three edges");
-    }
     a + ab * (vb / denom) + ac * (vc / denom)
 }
 
@@ -246,14 +247,24 @@ pub fn pair_steps(
     let pt = candidates.point_triangle.par_iter().map(|c| {
         let f = faces[c.face as usize];
         let ids = [c.vertex, f[0], f[1], f[2]];
-        let t = pair_step(CollisionKind::PointTriangle, &stencil(x, ids), &stencil(dx, ids), keep);
+        let t = pair_step(
+            CollisionKind::PointTriangle,
+            &stencil(x, ids),
+            &stencil(dx, ids),
+            keep,
+        );
         (CollisionKind::PointTriangle, ids, t)
     });
     let ee = candidates.edge_edge.par_iter().map(|c| {
         let [a0, a1] = edges[c.edge_a as usize];
         let [b0, b1] = edges[c.edge_b as usize];
         let ids = [a0, a1, b0, b1];
-        let t = pair_step(CollisionKind::EdgeEdge, &stencil(x, ids), &stencil(dx, ids), keep);
+        let t = pair_step(
+            CollisionKind::EdgeEdge,
+            &stencil(x, ids),
+            &stencil(dx, ids),
+            keep,
+        );
         (CollisionKind::EdgeEdge, ids, t)
     });
     let mut results: Vec<_> = pt.collect();

@@ -23,23 +23,49 @@ fn moved(x: &[Vec3; 4], dx: &[Vec3; 4], t: f64) -> [Vec3; 4] {
 fn a_falling_point_stops_short_and_a_sliding_one_moves_freely() {
     let tri = [v(0.0, 0.0, 0.0), v(1.0, 0.0, 0.0), v(0.0, 1.0, 0.0)];
     let x = [v(0.2, 0.3, 1.0), tri[0], tri[1], tri[2]];
-    let fall = [v(0.0, 0.0, -2.0), Vec3::zeros(), Vec3::zeros(), Vec3::zeros()];
+    let fall = [
+        v(0.0, 0.0, -2.0),
+        Vec3::zeros(),
+        Vec3::zeros(),
+        Vec3::zeros(),
+    ];
     let t = pair_step(CollisionKind::PointTriangle, &x, &fall, DEFAULT_KEEP);
     assert!((t - 0.45).abs() < 1e-12, "{t}");
     let end = moved(&x, &fall, t);
     assert!((distance(CollisionKind::PointTriangle, &end) - 0.1).abs() < 1e-12);
 
     // Both sides approach: the plane sits where they would meet.
-    let both = [v(0.0, 0.0, -1.0), v(0.0, 0.0, 1.0), v(0.0, 0.0, 1.0), v(0.0, 0.0, 1.0)];
+    let both = [
+        v(0.0, 0.0, -1.0),
+        v(0.0, 0.0, 1.0),
+        v(0.0, 0.0, 1.0),
+        v(0.0, 0.0, 1.0),
+    ];
     let t = pair_step(CollisionKind::PointTriangle, &x, &both, DEFAULT_KEEP);
     assert!((t - 0.45).abs() < 1e-12, "{t}");
 
     let close = [v(0.2, 0.3, 1e-9), tri[0], tri[1], tri[2]];
-    let slide = [v(0.3, 0.2, 0.0), Vec3::zeros(), Vec3::zeros(), Vec3::zeros()];
-    assert_eq!(pair_step(CollisionKind::PointTriangle, &close, &slide, DEFAULT_KEEP), 1.0);
+    let slide = [
+        v(0.3, 0.2, 0.0),
+        Vec3::zeros(),
+        Vec3::zeros(),
+        Vec3::zeros(),
+    ];
+    assert_eq!(
+        pair_step(CollisionKind::PointTriangle, &close, &slide, DEFAULT_KEEP),
+        1.0
+    );
 
     let touching = [v(0.2, 0.3, 0.0), tri[0], tri[1], tri[2]];
-    assert_eq!(pair_step(CollisionKind::PointTriangle, &touching, &slide, DEFAULT_KEEP), 0.0);
+    assert_eq!(
+        pair_step(
+            CollisionKind::PointTriangle,
+            &touching,
+            &slide,
+            DEFAULT_KEEP
+        ),
+        0.0
+    );
 }
 
 /// `|p − s|` for the closest point `s` of segment `(a, b)`, by its clamped parameter.
@@ -54,7 +80,13 @@ fn point_segment_distance(p: &Vec3, a: &Vec3, b: &Vec3) -> f64 {
 #[test]
 fn closest_points_give_the_exact_distance() {
     let mut rng = ChaCha8Rng::seed_from_u64(3);
-    let mut r = |s: f64| v(rng.random_range(-s..s), rng.random_range(-s..s), rng.random_range(-s..s));
+    let mut r = |s: f64| {
+        v(
+            rng.random_range(-s..s),
+            rng.random_range(-s..s),
+            rng.random_range(-s..s),
+        )
+    };
     for k in 0..20_000 {
         let mut x = [r(1.0), r(1.0), r(1.0), r(1.0)];
         match k % 5 {
@@ -121,7 +153,10 @@ fn a_filtered_step_keeps_every_pair_apart() {
             }
         }
     }
-    assert!(limited > 10_000, "the motions must approach often: {limited}");
+    assert!(
+        limited > 10_000,
+        "the motions must approach often: {limited}"
+    );
 }
 
 /// A whole surface: the step is the smallest pair's, the limiting pair is named, and the
@@ -134,7 +169,13 @@ fn the_surface_step_is_the_smallest_pair_step() {
     let n = x.len() / 3;
     // The upper sheet falls through the lower one.
     let dx: Vec<f64> = (0..n)
-        .flat_map(|i| if x[3 * i + 2] > 0.0 { [0.0, 0.0, -0.2] } else { [0.0; 3] })
+        .flat_map(|i| {
+            if x[3 * i + 2] > 0.0 {
+                [0.0, 0.0, -0.2]
+            } else {
+                [0.0; 3]
+            }
+        })
         .collect();
     let candidates = Candidates::build_swept(&mesh, &x, &dx, 0.0).unwrap();
     let report = planar_step_over(&mesh, &candidates, &x, &dx, DEFAULT_KEEP).unwrap();
@@ -143,7 +184,14 @@ fn the_surface_step_is_the_smallest_pair_step() {
     let per_vertex = vertex_steps(&mesh, &candidates, &x, &dx, DEFAULT_KEEP).unwrap();
     let smallest = per_vertex.iter().copied().fold(1.0, f64::min);
     assert_eq!(smallest, report.step);
-    let y: Vec<f64> = x.iter().zip(&dx).map(|(p, d)| p + report.step * d).collect();
-    assert!(crate::contact::Collisions::build(&mesh, &y, 1e-9).is_ok(), "no pair touches");
+    let y: Vec<f64> = x
+        .iter()
+        .zip(&dx)
+        .map(|(p, d)| p + report.step * d)
+        .collect();
+    assert!(
+        crate::contact::Collisions::build(&mesh, &y, 1e-9).is_ok(),
+        "no pair touches"
+    );
     assert!(planar_step_over(&mesh, &candidates, &x, &dx, 1.5).is_err());
 }
