@@ -23,6 +23,15 @@ pub fn closest_point_on_triangle(
 ) -> Point3<f64> {
     let ab = b - a;
     let ac = c - a;
+    if !(ab.cross(&ac).norm_squared() > 1e-14 * ab.norm_squared() * ac.norm_squared()) {
+        // Degenerate (zero-area, to rounding) triangle: the closest of its edges. The Voronoi
+        // tests below divide by its area.
+        return [(a, b), (b, c), (c, a)]
+            .into_iter()
+            .map(|(s, e)| closest_point_on_segment(p, s, e))
+            .min_by(|x, y| (p - x).norm_squared().total_cmp(&(p - y).norm_squared()))
+            .unwrap_or(*a);
+    }
     let ap = p - a;
     let d1 = ab.dot(&ap);
     let d2 = ac.dot(&ap);
@@ -54,14 +63,6 @@ pub fn closest_point_on_triangle(
         return b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6)));
     }
     let denom = va + vb + vc;
-    if denom.abs() < f64::MIN_POSITIVE {
-        // Degenerate (zero-area) triangle: fall back to its edges.
-        return [(a, b), (b, c), (c, a)]
-            .into_iter()
-            .map(|(s, e)| closest_point_on_segment(p, s, e))
-            .min_by(|x, y| (p - x).norm_squared().total_cmp(&(p - y).norm_squared()))
-            .unwrap_or(*a);
-    }
     a + ab * (vb / denom) + ac * (vc / denom)
 }
 

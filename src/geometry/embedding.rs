@@ -37,12 +37,7 @@ impl Embedding {
         points: &[Point3<f64>],
         accept: &(dyn Fn(usize, u32) -> bool + Sync),
     ) -> Self {
-        let boxes: Vec<Box3> = mesh
-            .tets
-            .iter()
-            .map(|t| Box3::around(&t.map(|v| mesh.vertices[v as usize]), 0.0))
-            .collect();
-        let tree = BoxTree::new(&boxes);
+        let tree = element_tree(mesh);
         let start_radius = 0.1 * mesh.diameter() / (mesh.element_count() as f64).cbrt().max(1.0);
         let located: Vec<(u32, [f64; 4], f64)> = points
             .par_iter()
@@ -72,6 +67,16 @@ impl Embedding {
             .map(|(&e, w)| interpolate(&tets[e as usize], w, x))
             .collect()
     }
+}
+
+/// A box tree over `mesh`'s elements at rest (element `e` is leaf `e`).
+pub fn element_tree(mesh: &TetMesh) -> BoxTree {
+    let boxes: Vec<Box3> = mesh
+        .tets
+        .iter()
+        .map(|t| Box3::around(&t.map(|v| mesh.vertices[v as usize]), 0.0))
+        .collect();
+    BoxTree::new(&boxes)
 }
 
 /// `Σᵢ wᵢ·xᵢ` over a tetrahedron's vertices, for interleaved mesh positions `x`.

@@ -28,8 +28,8 @@ use super::bone_motion::BoneMotion;
 use super::face::{Binding, FaceModel, RenderSurface};
 use super::fit::{ActuationFitter, FitError, FitSettings};
 use super::targets::{TargetError, shape_target};
-use crate::geometry::bvh::{Box3, BoxTree};
-use crate::geometry::embedding::{Embedding, barycentric, distance_to_tet};
+use crate::geometry::bvh::Box3;
+use crate::geometry::embedding::{Embedding, barycentric, distance_to_tet, element_tree};
 use crate::geometry::shell::Shell;
 use crate::rig::regions::lip_line;
 use crate::rig::style::STYLE_SHAPES;
@@ -333,12 +333,7 @@ pub(super) fn fit_to_rig(
     use rayon::prelude::*;
     let fits = ShapeFits::new(rig, face)?;
     let mesh = &face.mesh;
-    let boxes: Vec<Box3> = mesh
-        .tets
-        .iter()
-        .map(|t| Box3::around(&t.map(|v| mesh.vertices[v as usize]), 0.0))
-        .collect();
-    let tree = BoxTree::new(&boxes);
+    let tree = element_tree(mesh);
     let render = &face.render;
     let near_lips = lining_near_the_lips(rig, render);
     let chosen: Vec<Option<(Binding, Vec<f64>)>> = (0..render.rest.len())

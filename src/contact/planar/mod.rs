@@ -28,6 +28,7 @@
 //! its slack, or [`Candidates::build_swept`]), as for CCD. A pair that starts touching
 //! (`d = 0`) allows no step.
 
+use nalgebra::Point3;
 use rayon::prelude::*;
 
 use super::ContactError;
@@ -35,6 +36,7 @@ use super::candidates::Candidates;
 use super::collisions::CollisionKind;
 use super::math::{Vec3, stencil};
 use super::mesh::ContactMesh;
+use crate::geometry::distance::{closest_point_on_triangle, segment_segment_params};
 
 /// The share of each pair's starting distance that a filtered step keeps (`keep ∈ (0, 1)`);
 /// 0.1 matches additive CCD's default (`η = 0.9`) and ipc-toolkit's relaxed radius scaling.
@@ -64,106 +66,23 @@ fn check_keep(keep: f64) -> Result<(), ContactError> {
 /// The closest points of a stencil: `(c_A, c_B)` with `A` the point (edge `a`) and `B` the
 /// triangle (edge `b`).
 fn closest_points(kind: CollisionKind, x: &[Vec3; 4]) -> (Vec3, Vec3) {
+    let [p0, p1, p2, p3] = x.map(Point3::from);
     match kind {
-        CollisionKind::PointTriangle => (x[0], closest_on_triangle(&x[0], &x[1], &x[2], &x[3])),
-        CollisionKind::EdgeEdge => closest_on_segments(&x[0], &x[1], &x[2], &x[3]),
-    }
-}
-
-/// The point of triangle `(a, b, c)` closest to `p` (Ericson, *Real-Time Collision
-/// Detection*, §5.1.5: Voronoi regions of the vertices, then the edges, then the face).
-fn closest_on_triangle(p: &Vec3, a: &Vec3, b: &Vec3, c: &Vec3) -> Vec3 {
-    let (ab, ac, ap) = (b - a, c - a, p - a);
-    if !(ab.cross(&ac).norm_squared() > 1e-14 * ab.norm_squared() * ac.norm_squared()) {
-        // Degenerate (zero-area, to rounding) triangle: the closest of its three edges. The
-        // Voronoi tests below divide by its area.
-        return [(a, b), (b, c), (c, a)]
-            .iter()
-            .map(|(u, v)| closest_on_segment(p, u, v))
-            .min_by(|u, v| (u - p).norm_squared().total_cmp(&(v - p).norm_squared()))
-            .expect("three edges");
-    }
-    let (d1, d2) = (ab.dot(&ap), ac.dot(&ap));
-    if d1 <= 0.0 && d2 <= 0.0 {
-        return *a;
-    }
-    let bp = p - b;
-    let (d3, d4) = (ab.dot(&bp), ac.dot(&bp));
-    if d3 >= 0.0 && d4 <= d3 {
-        return *b;
-    }
-    let vc = d1 * d4 - d3 * d2;
-    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
-        return a + ab * (d1 / (d1 - d3));
-    }
-    let cp = p - c;
-    let (d5, d6) = (ab.dot(&cp), ac.dot(&cp));
-    if d6 >= 0.0 && d5 <= d6 {
-        return *c;
-    }
-    let vb = d5 * d2 - d1 * d6;
-    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
-        return a + ac * (d2 / (d2 - d6));
-    }
-    let va = d3 * d6 - d5 * d4;
-    if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
-        return b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6)));
-    }
-    let denom = va + vb + vc;
-    a + ab * (vb / denom) + ac * (vc / denom)
-}
-
-/// The point of segment `(a, b)` closest to `p`.
-fn closest_on_segment(p: &Vec3, a: &Vec3, b: &Vec3) -> Vec3 {
-    let ab = b - a;
-    let len2 = ab.norm_squared();
-    if !(len2 > 0.0) {
-        return *a;
-    }
-    a + ab * ((p - a).dot(&ab) / len2).clamp(0.0, 1.0)
-}
-
-/// The closest points of segments `(p1, q1)` and `(p2, q2)` (Ericson §5.1.9, with the
-/// parallel and degenerate cases clamped).
-fn closest_on_segments(p1: &Vec3, q1: &Vec3, p2: &Vec3, q2: &Vec3) -> (Vec3, Vec3) {
-    let (d1, d2, r) = (q1 - p1, q2 - p2, p1 - p2);
-    let (a, e, f) = (d1.norm_squared(), d2.norm_squared(), d2.dot(&r));
-    if !(a > 0.0) && !(e > 0.0) {
-        return (*p1, *p2);
-    }
-    let (s, t) = if !(a > 0.0) {
-        (0.0, (f / e).clamp(0.0, 1.0))
-    } else {
-        let c = d1.dot(&r);
-        if !(e > 0.0) {
-            ((-c / a).clamp(0.0, 1.0), 0.0)
-        } else {
-            let b = d1.dot(&d2);
-            let denom = a * e - b * b;
-            let mut s = if denom > 1e-14 * a * e {
-                ((b * f - c * e) / denom).clamp(0.0, 1.0)
-            } else {
-                0.0
-            };
-            let mut t = (b * s + f) / e;
-            if t < 0.0 {
-                t = 0.0;
-                s = (-c / a).clamp(0.0, 1.0);
-            } else if t > 1.0 {
-                t = 1.0;
-                s = ((b - c) / a).clamp(0.0, 1.0);
-            }
-            (s, t)
+        CollisionKind::PointTriangle => {
+            (x[0], closest_point_on_triangle(&p0, &p1, &p2, &p3).coords)
         }
-    };
-    (p1 + d1 * s, p2 + d2 * t)
+        CollisionKind::EdgeEdge => {
+            let (s, t) = segment_segment_params(&p0, &p1, &p2, &p3);
+            (x[0] + (x[1] - x[0]) * s, x[2] + (x[3] - x[2]) * t)
+        }
+    }
 }
 
-/// How many of the stencil's vertices belong to side `A` (the point, or edge `a`).
 /// Gaps below this share of the coordinates' magnitude count as touching (a few ulps: the
 /// closest points are computed to about that).
 const TOUCHING: f64 = 64.0 * f64::EPSILON;
 
+/// How many of the stencil's vertices belong to side `A` (the point, or edge `a`).
 fn side_a(kind: CollisionKind) -> usize {
     match kind {
         CollisionKind::PointTriangle => 1,
