@@ -215,6 +215,9 @@ pub struct ShapesArgs {
     /// Sample faces to measure (default: all).
     #[arg(long, value_delimiter = ',')]
     faces: Vec<String>,
+    /// Expression sliders to measure, each alone at weight 1 (default: all 19).
+    #[arg(long, value_delimiter = ',')]
+    shapes: Vec<String>,
     #[arg(long, default_value_t = facesim::sim::Quality::Final)]
     quality: facesim::sim::Quality,
     /// Lip and teeth contact in the solve.
@@ -231,10 +234,31 @@ pub struct ShapesArgs {
 
 pub fn bench_shapes(args: &ShapesArgs) -> Result<()> {
     use facesim::bench::shapes;
+    let mut codes = shapes::single_shapes();
+    if let Some(unknown) = args
+        .shapes
+        .iter()
+        .find(|s| !codes.iter().any(|(name, _)| name == *s))
+    {
+        anyhow::bail!(
+            "unknown expression slider '{unknown}' (expected one of {})",
+            facesim::rig::ExpressionCode::NAMES.join(", ")
+        );
+    }
+    if !args.shapes.is_empty() {
+        codes.retain(|(name, _)| args.shapes.contains(name));
+    }
     let sample = facesim::sample::Sample::load(&args.sample)
         .with_context(|| format!("loading the sample from {}", args.sample.display()))?;
     let rig = facesim::rig::FaceRig::load(&args.rig)
         .with_context(|| format!("loading the rig from {}", args.rig.display()))?;
+    if let Some(unknown) = args
+        .faces
+        .iter()
+        .find(|name| !sample.faces.iter().any(|f| &f.name == *name))
+    {
+        anyhow::bail!("the sample has no face '{unknown}'");
+    }
     let networks = match &args.networks {
         Some(path) => {
             use facesim::generative::train::NetworkSet;
@@ -252,7 +276,6 @@ pub fn bench_shapes(args: &ShapesArgs) -> Result<()> {
         ContactRuns::On => &[true],
         ContactRuns::Both => &[false, true],
     };
-    let codes = shapes::single_shapes();
     let mut rows = Vec::new();
     for (i, face) in sample.faces.iter().enumerate() {
         if !args.faces.is_empty() && !args.faces.contains(&face.name) {

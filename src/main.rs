@@ -103,6 +103,9 @@ enum BenchTarget {
         /// Also measure with lip and teeth contact on (the editor's checkbox).
         #[arg(long)]
         contact: bool,
+        /// Quality presets to measure (default: all three).
+        #[arg(long, value_delimiter = ',', default_values_t = facesim::sim::Quality::ALL)]
+        presets: Vec<facesim::sim::Quality>,
     },
     /// The quasistatic solver on generated slabs: factorization, iteration cost against its
     /// floor, time to tolerance from rest and warm-started.
@@ -309,8 +312,9 @@ fn main() -> Result<()> {
                     sliders,
                     steps,
                     contact,
+                    presets,
                 },
-        } => bench_editor(&sample, &faces, &sliders, steps, contact)?,
+        } => bench_editor(&sample, &faces, &sliders, steps, contact, &presets)?,
         Command::Bench {
             target:
                 BenchTarget::Solver {
@@ -344,6 +348,7 @@ fn bench_editor(
     sliders: &[String],
     steps: usize,
     contact: bool,
+    presets: &[facesim::sim::Quality],
 ) -> Result<()> {
     let sample = facesim::sample::Sample::load(sample_dir)
         .with_context(|| format!("loading the sample from {}", sample_dir.display()))?;
@@ -366,7 +371,7 @@ fn bench_editor(
         for contact in std::iter::once(false).chain(contact.then_some(true)) {
             rows.extend(facesim::bench::editor::bench_latency(
                 face.clone(),
-                &facesim::sim::Quality::ALL,
+                presets,
                 &sliders,
                 steps,
                 contact,

@@ -230,3 +230,73 @@ fn contact_sweep_reports_frames_and_writes_json() {
     assert_eq!(report["contact"]["intersecting"], 0);
     assert_eq!(report["contact"]["from_rest"], 0);
 }
+
+/// `bench shapes` measures the chosen sliders on the chosen faces against the rig, vertex by
+/// vertex, and refuses a slider or face it does not know. The neutral face's jawOpen skin
+/// was 42.4 mm from the rig before the mouth's bindings took the jaw's side (face format 3).
+#[test]
+fn bench_shapes_measures_one_slider_against_the_rig_and_refuses_unknown_names() {
+    let json = std::env::temp_dir().join(format!("facesim-shapes-{}.json", std::process::id()));
+    let rig = rig_dir();
+    let table = stdout_of(facesim().args([
+        "bench",
+        "shapes",
+        "--rig",
+        &rig,
+        "--faces",
+        "neutral",
+        "--shapes",
+        "jawOpen",
+        "--contact",
+        "off",
+        "--json",
+        json.to_str().unwrap(),
+    ]));
+    assert!(table.contains("| neutral | jawOpen | off |"), "{table}");
+    let rows: serde_json::Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
+    let _ = std::fs::remove_file(&json);
+    let rows = rows.as_array().unwrap();
+    assert_eq!(rows.len(), 1, "{rows:?}");
+    assert_eq!(rows[0]["termination"], "Converged", "{:?}", rows[0]);
+    let max = rows[0]["skin_max_mm"].as_f64().unwrap();
+    assert!(
+        max <= 2.0,
+        "jawOpen's skin is {max} mm from the rig at worst"
+    );
+
+    let err = stderr_of_failure(facesim().args(["bench", "shapes", "--shapes", "jawOpenn"]));
+    assert!(
+        err.contains("unknown expression slider 'jawOpenn'"),
+        "{err}"
+    );
+    let err = stderr_of_failure(facesim().args([
+        "bench", "shapes", "--rig", &rig, "--faces", "nobody", "--shapes", "jawOpen",
+    ]));
+    assert!(err.contains("the sample has no face 'nobody'"), "{err}");
+}
+
+/// `bench editor --presets` measures only the presets asked for.
+#[test]
+fn bench_editor_measures_the_chosen_presets() {
+    let table = stdout_of(facesim().args([
+        "bench",
+        "editor",
+        "--sliders",
+        "mouthSmile_L",
+        "--steps",
+        "2",
+        "--presets",
+        "interactive",
+    ]));
+    let rows: Vec<&str> = table
+        .lines()
+        .filter(|l| l.starts_with("| neutral"))
+        .collect();
+    assert_eq!(rows.len(), 1, "{table}");
+    assert!(
+        rows[0].starts_with("| neutral | interactive | off | 2 |"),
+        "{table}"
+    );
+    let err = stderr_of_failure(facesim().args(["bench", "editor", "--presets", "fast"]));
+    assert!(err.contains("unknown quality 'fast'"), "{err}");
+}

@@ -41,6 +41,10 @@ pub fn drag(slider: &str, steps: usize) -> Vec<ExpressionCode> {
         .collect()
 }
 
+/// How long one frame may take before the benchmark gives up (a final-preset contact frame
+/// has taken over 100 s).
+const FRAME_TIMEOUT_S: u64 = 600;
+
 /// Latency rows for `face` at each of `presets`, contact on or off; `sliders` are dragged
 /// one after another.
 pub fn bench_latency(
@@ -56,18 +60,17 @@ pub fn bench_latency(
         let session = Session::new(vec![face.clone()], quality)?;
         session.submit(Request::Refine(false))?;
         session.submit(Request::Contact(contact))?;
-        let timeout = Duration::from_secs(120);
-        session
-            .wait_newer(None, timeout)
-            .ok_or(SessionError::Stopped)?;
+        let timeout = Duration::from_secs(FRAME_TIMEOUT_S);
+        let timed_out = || SessionError::TimedOut {
+            seconds: FRAME_TIMEOUT_S,
+        };
+        session.wait_newer(None, timeout).ok_or_else(timed_out)?;
         let (mut ms, mut iterations, mut errors) = (Vec::new(), Vec::new(), 0);
         for slider in sliders {
             for code in drag(slider, steps) {
                 let start = Instant::now();
                 let g = session.submit(Request::Expression(code))?;
-                let frame = session
-                    .wait_generation(g, timeout)
-                    .ok_or(SessionError::Stopped)?;
+                let frame = session.wait_generation(g, timeout).ok_or_else(timed_out)?;
                 ms.push(start.elapsed().as_secs_f64() * 1e3);
                 iterations.push(frame.stats.iterations);
                 errors += usize::from(frame.error.is_some());

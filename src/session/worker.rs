@@ -89,6 +89,8 @@ pub enum SessionError {
     Code(#[from] DriveError),
     #[error("the session's worker has stopped")]
     Stopped,
+    #[error("no frame within {seconds} s (the solve is still running)")]
+    TimedOut { seconds: u64 },
 }
 
 struct Pending {

@@ -162,7 +162,7 @@ fn at_full_jaw_opening_the_mouth_shows_the_teeth() {
         .build_eframe(|cc| EditorApp::new(cc, session.clone()));
     wait_for(&mut harness, |app| app.last_frame.is_some());
     harness.run_steps(3);
-    let mut inside_shown = |harness: &mut Harness<'_, EditorApp>| {
+    let inside_shown = |harness: &mut Harness<'_, EditorApp>| {
         let with = harness.render().expect("software rendering");
         harness.state_mut().toggles.teeth = false;
         harness.run_steps(3);
