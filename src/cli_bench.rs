@@ -23,7 +23,7 @@ pub struct TradeoffArgs {
     /// Finer faces are built from the rig once and kept here (`neutral-<lod>.face/.basis`).
     #[arg(long, default_value = "target/facesim-lods")]
     models: PathBuf,
-    #[arg(long, default_value = "../shared/data/ict-facekit")]
+    #[arg(long, default_value = facesim::rig::DEFAULT_RIG_DIR)]
     rig: PathBuf,
     /// Where to write `tradeoff.md`, `tradeoff.json` and `tradeoff.png`.
     #[arg(long, default_value = "tradeoff")]
@@ -210,7 +210,7 @@ pub enum ContactRuns {
 pub struct ShapesArgs {
     #[arg(long, default_value = facesim::sample::SAMPLE_DIR)]
     sample: PathBuf,
-    #[arg(long, default_value = "../shared/data/ict-facekit")]
+    #[arg(long, default_value = facesim::rig::DEFAULT_RIG_DIR)]
     rig: PathBuf,
     /// Sample faces to measure (default: all).
     #[arg(long, value_delimiter = ',')]

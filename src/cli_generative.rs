@@ -7,6 +7,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use anyhow::{Context, Result};
+use facesim::bench::median;
 use facesim::drive::ActuationModel;
 use facesim::generative::data::FacePoses;
 use facesim::generative::displacement::SAMPLE_DISPLACEMENT;
@@ -48,7 +49,7 @@ pub struct TrainArgs {
     #[arg(long, default_value = facesim::sample::SAMPLE_DIR)]
     sample: PathBuf,
     /// The rig (needed to make missing stage-1 data, and by stage 2 for its targets).
-    #[arg(long, default_value = "../shared/data/ict-facekit")]
+    #[arg(long, default_value = facesim::rig::DEFAULT_RIG_DIR)]
     rig: PathBuf,
     /// Output folder: generative.nn, checkpoint.nn, loss.csv, train.json, poses/ (stage 2:
     /// generative-stage2.nn, stage2-checkpoint.nn, stage2-loss.csv, stage2-train.json; the
@@ -93,7 +94,7 @@ pub struct TrainArgs {
 pub struct EvalArgs {
     #[arg(long, default_value = facesim::sample::SAMPLE_DIR)]
     sample: PathBuf,
-    #[arg(long, default_value = "../shared/data/ict-facekit")]
+    #[arg(long, default_value = facesim::rig::DEFAULT_RIG_DIR)]
     rig: PathBuf,
     /// The trained networks (generative.nn).
     #[arg(long)]
@@ -156,11 +157,6 @@ fn save_checkpoint(ck: &Checkpoint, path: &Path) -> Result<()> {
     let mut bytes = Vec::new();
     ck.to_writer(&mut bytes)?;
     write_atomic(path, &bytes)
-}
-
-fn median(v: &mut [f64]) -> f64 {
-    v.sort_by(f64::total_cmp);
-    if v.is_empty() { 0.0 } else { v[v.len() / 2] }
 }
 
 /// The stage-1 poses of every sample face: cached ones, the rest fitted (and cached); `rig`
@@ -521,7 +517,7 @@ fn run_training<D: TrainingData>(
         .to_checkpoint()
         .save(&model_path)
         .with_context(|| format!("writing {}", model_path.display()))?;
-    let ms = median(&mut step_ms);
+    let ms = median(&step_ms);
     let summary = serde_json::json!({
         "stage": files.label,
         "config": config,
@@ -764,9 +760,9 @@ pub fn bench(a: &BenchArgs) -> Result<()> {
             "| {} | {} | {:.2} | {:.2} | {:.2} |",
             f.name,
             g.element_count(),
-            median(&mut cached),
-            median(&mut full),
-            median(&mut actuate)
+            median(&cached),
+            median(&full),
+            median(&actuate)
         );
     }
     Ok(())

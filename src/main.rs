@@ -25,7 +25,7 @@ enum Command {
     /// Build simulation-ready face models from a blendshape rig laid out like ICT-FaceKit.
     Import {
         /// The rig folder (neutral, expression and identity OBJs, vertex_indices.json).
-        #[arg(long, default_value = "../shared/data/ict-facekit")]
+        #[arg(long, default_value = facesim::rig::DEFAULT_RIG_DIR)]
         rig: PathBuf,
         /// Where to write the models (`<identity>-<lod>.face`).
         #[arg(long)]
@@ -40,7 +40,7 @@ enum Command {
     /// Build the bundled sample (template + a few identities, coarse, with fitted actuation
     /// bases); then train its mappings with `train-mapping --faces OUT`.
     Sample {
-        #[arg(long, default_value = "../shared/data/ict-facekit")]
+        #[arg(long, default_value = facesim::rig::DEFAULT_RIG_DIR)]
         rig: PathBuf,
         #[arg(long, default_value = facesim::sample::SAMPLE_DIR)]
         out: PathBuf,
@@ -137,7 +137,7 @@ enum BenchTarget {
         /// A face model file; without it the neutral coarse face is built from `--rig`.
         #[arg(long)]
         model: Option<PathBuf>,
-        #[arg(long, default_value = "../shared/data/ict-facekit")]
+        #[arg(long, default_value = facesim::rig::DEFAULT_RIG_DIR)]
         rig: PathBuf,
         /// Frames of the slider drag.
         #[arg(long, default_value_t = 12)]
@@ -393,18 +393,29 @@ fn spinner() -> indicatif::ProgressBar {
     bar
 }
 
+/// Loads the rig, with a line of progress per file on a terminal and only the summary in a
+/// log (no carriage returns or escape codes where stderr is not a terminal).
 fn load_rig(rig_dir: &std::path::Path) -> Result<facesim::rig::FaceRig> {
+    use std::io::IsTerminal;
+    let terminal = std::io::stderr().is_terminal();
     eprintln!("loading the rig from {}…", rig_dir.display());
     let rig = facesim::rig::FaceRig::load_with_progress(rig_dir, &|p| {
-        eprint!("\r  {}/{} {}\x1b[K", p.done, p.total, p.file.display())
+        if terminal {
+            eprint!("\r  {}/{} {}\x1b[K", p.done, p.total, p.file.display())
+        }
     })
     .with_context(|| format!("loading the rig from {}", rig_dir.display()))?;
-    eprintln!(
-        "\r  loaded {} shapes and {} identities in {:.2} s\x1b[K",
+    let summary = format!(
+        "  loaded {} shapes and {} identities in {:.2} s",
         rig.shape_names().len(),
         rig.identity_count(),
         rig.load_time().as_secs_f64()
     );
+    if terminal {
+        eprintln!("\r{summary}\x1b[K");
+    } else {
+        eprintln!("{summary}");
+    }
     Ok(rig)
 }
 

@@ -300,3 +300,22 @@ fn bench_editor_measures_the_chosen_presets() {
     let err = stderr_of_failure(facesim().args(["bench", "editor", "--presets", "fast"]));
     assert!(err.contains("unknown quality 'fast'"), "{err}");
 }
+
+/// Progress written to a log (stderr not a terminal) is plain lines: no carriage returns or
+/// terminal escape codes.
+#[test]
+fn progress_in_a_log_has_no_escape_codes() {
+    let out = std::env::temp_dir().join(format!("facesim-import-{}", std::process::id()));
+    let err = stderr_of_failure(facesim().args([
+        "import",
+        "--rig",
+        &rig_dir(),
+        "--out",
+        out.to_str().unwrap(),
+        "--identities",
+        "99",
+    ]));
+    assert!(err.contains("loaded 53 shapes and 10 identities"), "{err}");
+    assert!(err.contains("identity 99 is not in the rig"), "{err}");
+    assert!(!err.contains(['\r', '\x1b']), "{err:?}");
+}

@@ -15,6 +15,7 @@ use std::time::Duration;
 
 use serde::Serialize;
 
+use super::median;
 use crate::contact::drive::{FrameOutcome, LipField, MouthPose, run_sequence};
 use crate::contact::face::{FaceContact, FaceContactSettings};
 use crate::model::FaceModel;
@@ -109,14 +110,6 @@ pub fn subtle_pose(k: usize, count: usize) -> MouthPose {
     }
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
-}
-
 fn ms(d: Duration) -> f64 {
     d.as_secs_f64() * 1e3
 }
@@ -181,7 +174,9 @@ pub fn bench(model: &FaceModel, frames: usize) -> Result<Vec<ContactBenchRow>, S
             .iter()
             .filter_map(|o| o.result.as_ref().ok())
             .collect();
-        let per = |f: &dyn Fn(&SolveStats) -> f64| median(solved.iter().map(|s| f(s)).collect());
+        let per = |f: &dyn Fn(&SolveStats) -> f64| {
+            median(&solved.iter().map(|s| f(s)).collect::<Vec<_>>())
+        };
         let contact_ms = |f: &dyn Fn(&crate::sim::ContactStats) -> Duration| {
             per(&|s| s.contact.as_ref().map_or(0.0, |c| ms(f(c))))
         };

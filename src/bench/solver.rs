@@ -5,6 +5,7 @@ use std::time::{Duration, Instant};
 
 use serde::Serialize;
 
+use super::median;
 use crate::scene::SlabScene;
 use crate::sim::global_matrix::GlobalMatrix;
 use crate::sim::{BonePose, SimConfig, SimError, SimState, Simulator, SolveSettings, SymTensor};
@@ -47,18 +48,8 @@ fn ms(d: Duration) -> f64 {
     d.as_secs_f64() * 1e3
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    }
-}
-
 fn median_time(samples: usize, mut f: impl FnMut() -> Duration) -> f64 {
-    median((0..samples.max(1)).map(|_| ms(f())).collect())
+    median(&(0..samples.max(1)).map(|_| ms(f())).collect::<Vec<_>>())
 }
 
 /// Runs the benchmark for one mesh size.
@@ -125,7 +116,7 @@ pub fn bench_size(elements: usize, samples: usize) -> Result<SolverBenchRow, Sim
         }
     }
     let (iteration_ms, bare_solve_ms, local_sweep_ms) =
-        (median(iteration), median(bare_solve), median(local_step));
+        (median(&iteration), median(&bare_solve), median(&local_step));
 
     let to_tolerance =
         |start: &SimState, target: &[SymTensor], tolerance: f64| -> Result<ToTolerance, SimError> {
@@ -145,7 +136,7 @@ pub fn bench_size(elements: usize, samples: usize) -> Result<SolverBenchRow, Sim
             Ok(ToTolerance {
                 tolerance,
                 iterations,
-                median_ms: median(times),
+                median_ms: median(&times),
             })
         };
     let rest = sim.rest_state();

@@ -33,6 +33,10 @@ pub use obj::{ObjError, ObjMesh, Polygons};
 pub use regions::Region;
 pub use style::StyleCode;
 
+/// Where the tools look for the rig by default (relative to the working directory: the
+/// repository's root in this project's layout).
+pub const DEFAULT_RIG_DIR: &str = "../shared/data/ict-facekit";
+
 #[cfg(test)]
 pub(crate) mod test_support {
     //! Shared test fixtures: the ICT rig (loaded once per test binary) and temp dirs.
