@@ -486,8 +486,7 @@ mod tests {
         let posed = face.render_positions(&fit.positions, &bones);
         let nearest = Embedding::new(&face.mesh, &render.rest);
         let (mut skin, mut lining) = (Vec::new(), Vec::new());
-        for i in 0..render.rest.len() {
-            let v = render.rig_vertices[i];
+        for (i, &v) in render.rig_vertices.iter().enumerate() {
             if (target.render[i] - render.rest[i]).norm() < 3.0 {
                 continue;
             }

@@ -11,7 +11,7 @@ use facesim::rig::ExpressionCode;
 use facesim::rig::style::StyleCode;
 use facesim::session::track::Track;
 use facesim::session::{Display, Frame, Request, SessionHandle};
-use facesim::sim::{Quality, Termination};
+use facesim::sim::Quality;
 use nalgebra::Point3;
 
 use crate::scene::{self, Toggles};
