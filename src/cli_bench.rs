@@ -232,19 +232,22 @@ pub struct ShapesArgs {
     json: Option<PathBuf>,
 }
 
+/// Refuses any name that is not one of the expression sliders.
+pub fn check_sliders(names: &[String]) -> Result<()> {
+    use facesim::rig::ExpressionCode;
+    match names.iter().find(|s| ExpressionCode::index_of(s).is_none()) {
+        Some(unknown) => anyhow::bail!(
+            "unknown expression slider '{unknown}' (expected one of {})",
+            ExpressionCode::NAMES.join(", ")
+        ),
+        None => Ok(()),
+    }
+}
+
 pub fn bench_shapes(args: &ShapesArgs) -> Result<()> {
     use facesim::bench::shapes;
+    check_sliders(&args.shapes)?;
     let mut codes = shapes::single_shapes();
-    if let Some(unknown) = args
-        .shapes
-        .iter()
-        .find(|s| !codes.iter().any(|(name, _)| name == *s))
-    {
-        anyhow::bail!(
-            "unknown expression slider '{unknown}' (expected one of {})",
-            facesim::rig::ExpressionCode::NAMES.join(", ")
-        );
-    }
     if !args.shapes.is_empty() {
         codes.retain(|(name, _)| args.shapes.contains(name));
     }

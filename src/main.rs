@@ -350,16 +350,10 @@ fn bench_editor(
     contact: bool,
     presets: &[facesim::sim::Quality],
 ) -> Result<()> {
+    cli_bench::check_sliders(sliders)?;
     let sample = facesim::sample::Sample::load(sample_dir)
         .with_context(|| format!("loading the sample from {}", sample_dir.display()))?;
     let sliders: Vec<&str> = sliders.iter().map(String::as_str).collect();
-    for s in &sliders {
-        anyhow::ensure!(
-            facesim::rig::ExpressionCode::index_of(s).is_some(),
-            "'{s}' is not an expression slider ({})",
-            facesim::rig::ExpressionCode::NAMES.join(", ")
-        );
-    }
     let mut rows = Vec::new();
     for name in faces {
         let face = sample

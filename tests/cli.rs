@@ -299,6 +299,11 @@ fn bench_editor_measures_the_chosen_presets() {
     );
     let err = stderr_of_failure(facesim().args(["bench", "editor", "--presets", "fast"]));
     assert!(err.contains("unknown quality 'fast'"), "{err}");
+    let err = stderr_of_failure(facesim().args(["bench", "editor", "--sliders", "jawOpenn"]));
+    assert!(
+        err.contains("unknown expression slider 'jawOpenn'"),
+        "{err}"
+    );
 }
 
 /// Progress written to a log (stderr not a terminal) is plain lines: no carriage returns or
