@@ -244,7 +244,7 @@ fn bench_shapes_measures_one_slider_against_the_rig_and_refuses_unknown_names() 
         "--rig",
         &rig,
         "--faces",
-        "neutral",
+        "neutral,identity000",
         "--shapes",
         "jawOpen",
         "--contact",
@@ -256,8 +256,12 @@ fn bench_shapes_measures_one_slider_against_the_rig_and_refuses_unknown_names() 
     let rows: serde_json::Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
     let _ = std::fs::remove_file(&json);
     let rows = rows.as_array().unwrap();
-    assert_eq!(rows.len(), 1, "{rows:?}");
-    assert_eq!(rows[0]["termination"], "Converged", "{:?}", rows[0]);
+    assert_eq!(rows.len(), 2, "{rows:?}");
+    // identity000's jawOpen (with its style) squeezed the lips' corners into the volume
+    // barrier and found no equilibrium before the volume floor.
+    for row in rows {
+        assert_eq!(row["termination"], "Converged", "{row:?}");
+    }
     let max = rows[0]["skin_max_mm"].as_f64().unwrap();
     assert!(
         max <= 2.0,
