@@ -535,7 +535,7 @@ fn sample_faces() -> Vec<SessionFace> {
 /// without contact at the final preset its solve ends at the iteration cap with the net
 /// force far above the element forces (residual 0.09, 10⁴ times the tolerance is 0.01), also
 /// from rest: an error frame with the last good geometry. At the interactive preset
-/// mouthClose at full weight (611 iterations to converge at the final preset) stops capped:
+/// mouthClose at full weight (346 iterations to converge at the final preset) stops capped:
 /// a frame, marked unconverged (the editor, the protocol and the export read
 /// `stats.converged`).
 #[test]
