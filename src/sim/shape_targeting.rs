@@ -14,8 +14,8 @@
 //!
 //! Before the barrier is reached, a volume floor resists squeezing: below half its target
 //! volume an element gains `κ·w·V·(J_f − J)³/(3·J_f)`, `J_f = ½·min(det A, 1)`
-//! ([`VOLUME_FLOOR`]), so squeezed tissue
-//! bulges instead of crushing its smallest elements into the barrier.
+//! ([`VOLUME_FLOOR`]), so squeezed tissue bulges instead of crushing its smallest elements
+//! into the barrier.
 
 use nalgebra::{Matrix3, UnitQuaternion};
 
@@ -48,8 +48,8 @@ pub const BARRIER_WEIGHT: f64 = 1.0;
 /// Volume floor: an element squeezed below `c = VOLUME_FLOOR` times its target volume
 /// (`J_f = c·min(det A, 1)`) pays `κ·w·V·(J_f − J)³/(3·J_f)`, `κ = VOLUME_WEIGHT`: C² at
 /// the floor (a quadratic's curvature jump there kept L-BFGS from the 10⁻¹¹ residual the
-/// stage-2 gradient check solves to), and as strong as `(κ·w·V/2)·(J_f − J)²` at `J = 0`. Shape targeting
-/// alone resists compression only linearly (collapsing an element costs `w·V·‖A‖²/2`), so
+/// stage-2 gradient check solves to), with the same force at `J = 0` as
+/// `(κ·w·V/2)·(J_f − J)²`. Shape targeting alone resists compression only linearly (collapsing an element costs `w·V·‖A‖²/2`), so
 /// where the bones and neighbours squeeze the tissue (the lips' corners as the jaw opens)
 /// small elements were crushed into the barrier (`J` of 10⁻³…10⁻⁵), every step was then cut
 /// to 10⁻³…10⁻⁸ by [`STEP_VOLUME_KEPT`], and the solve stalled. The floor makes the tissue
@@ -63,16 +63,10 @@ pub const BARRIER_WEIGHT: f64 = 1.0;
 pub const VOLUME_WEIGHT: f64 = 30.0;
 pub const VOLUME_FLOOR: f64 = 0.5;
 
-/// `min(J − c·min(det A, 1), 0)`: how far an element is squeezed below the volume floor. A
-/// target that grows the element keeps the floor at `c` of the rest volume: the floor is
-/// against crushing, not a demand to grow (with `c·det A` an actuation of 5·I, `det A` =
-/// 125, asked for a 62-fold volume at a quadratic price and found no equilibrium).
-#[inline]
-fn below_floor(j: f64, a: &Matrix3<f64>) -> f64 {
-    (j - floor_volume(a)).min(0.0)
-}
-
-/// `J_f = c·min(det A, 1)`.
+/// `J_f = c·min(det A, 1)`, the volume ratio below which the floor acts. A target that
+/// grows the element keeps the floor at `c` of the rest volume: the floor is against
+/// crushing, not a demand to grow (with `c·det A` an actuation of 5·I, `det A` = 125, asked
+/// for a 62-fold volume and found no equilibrium).
 #[inline]
 fn floor_volume(a: &Matrix3<f64>) -> f64 {
     VOLUME_FLOOR * a.determinant().min(1.0)
@@ -211,10 +205,11 @@ pub fn local_step(
     let diff = f - rotation.to_rotation_matrix().matrix() * a;
     let j = f.determinant();
     let (mut energy, mut stress) = (0.5 * wv * diff.norm_squared(), diff * wv);
-    let dv = below_floor(j, a);
+    let jf = floor_volume(a);
+    let dv = j - jf;
     if dv < 0.0 {
         // E = κ·w·V·(−d)³/(3·J_f), C² at the floor (d = 0); ∂E/∂J = −κ·w·V·d²/J_f.
-        let (kv, jf) = (wv * VOLUME_WEIGHT, floor_volume(a));
+        let kv = wv * VOLUME_WEIGHT;
         energy -= kv * dv * dv * dv / (3.0 * jf);
         stress -= cofactor(f) * (kv * dv * dv / jf);
     }
@@ -265,11 +260,11 @@ impl Linearized {
         let dr = self.polar.d_rotation(&(df * self.a));
         let mut shape = (df - dr * self.a) * self.wv;
         let j = self.f.determinant();
-        let dv = below_floor(j, &self.a);
+        let jf = floor_volume(&self.a);
+        let dv = j - jf;
         if dv < 0.0 {
             // d(−κwV·d²/J_f·cof F) = −κwV/J_f·(2d·⟨cof F, dF⟩·cof F + d²·d cof F).
             let (cof, kv) = (cofactor(&self.f), self.wv * VOLUME_WEIGHT);
-            let jf = floor_volume(&self.a);
             shape -= (cof * (2.0 * dv * cof.component_mul(df).sum())
                 + cofactor_differential(&self.f, df) * (dv * dv))
                 * (kv / jf);
@@ -300,16 +295,16 @@ impl Linearized {
             let dr = self.polar.d_rotation(&(self.f * da));
             *value = self.wv * (lambda.component_mul(&(dr * self.a)).sum() + direct[k]);
         }
-        let dv = below_floor(self.f.determinant(), &self.a);
+        let jf = floor_volume(&self.a);
+        let dv = self.f.determinant() - jf;
         if dv < 0.0 {
             // The stress −κwV·d²/J_f·cof F moves with J_f = c·det A (d = J − J_f):
             // ∂/∂J_f = κwV·(2d/J_f + d²/J_f²)·cof F, and ∂J_f/∂A = c·cof A.
-            let jf = floor_volume(&self.a);
             let along = -lambda.component_mul(&cofactor(&self.f)).sum()
                 * (self.wv * VOLUME_WEIGHT * VOLUME_FLOOR)
                 * (2.0 * dv / jf + dv * dv / (jf * jf));
             // The floor does not move with A once det A ≥ 1.
-            let cof_a = if self.a.determinant() < 1.0 {
+            let cof_a = if jf < VOLUME_FLOOR {
                 cofactor(&self.a)
             } else {
                 Matrix3::zeros()

@@ -726,30 +726,27 @@ impl Simulator {
                     break;
                 }
                 let mut h0 = |v: &mut [f64]| step_inverse.apply(&self.global, v, &mut scratch);
-                global_time += history.direction(&mut h0, &g, &mut d);
-                let mut slope = dot(&g, &d);
-                if !(slope < 0.0) {
-                    // Not a descent direction (lost curvature information): restart as plain PD.
-                    history.clear();
+                // The L-BFGS direction, restarted as plain PD when the curvature pairs fail
+                // it: it is not a descent direction (lost curvature information), or the
+                // contact filter allows almost nothing of it (the pairs' own steps were that
+                // short too, so they say little; PD's step the filter lets through).
+                let (slope, mut alpha) = loop {
                     global_time += history.direction(&mut h0, &g, &mut d);
-                    slope = dot(&g, &d);
-                }
-                let mut alpha = match contact.as_mut() {
-                    Some(c) => c.max_step(&d)?,
-                    None => 1.0,
-                };
-                if alpha < SHORT_STEP && !history.is_empty() {
-                    // The curvature pairs point where the contact filter allows almost
-                    // nothing (their steps were that short too, so the pairs say little):
-                    // restart as plain PD, whose step the filter lets through.
-                    history.clear();
-                    global_time += history.direction(&mut h0, &g, &mut d);
-                    slope = dot(&g, &d);
-                    alpha = match contact.as_mut() {
+                    let slope = dot(&g, &d);
+                    if !(slope < 0.0) && !history.is_empty() {
+                        history.clear();
+                        continue;
+                    }
+                    let alpha = match contact.as_mut() {
                         Some(c) => c.max_step(&d)?,
                         None => 1.0,
                     };
-                }
+                    if alpha < SHORT_STEP && !history.is_empty() {
+                        history.clear();
+                        continue;
+                    }
+                    break (slope, alpha);
+                };
                 alpha = alpha.min(self.volume_step_limit(&steps, &d));
                 let mut accepted = None;
                 if alpha > 0.0 {
