@@ -232,6 +232,37 @@ pub struct ShapesArgs {
     json: Option<PathBuf>,
 }
 
+#[derive(clap::Args)]
+pub struct RemoteArgs {
+    #[arg(long, default_value = facesim::sample::SAMPLE_DIR)]
+    sample: PathBuf,
+    /// The sample face to edit.
+    #[arg(long, default_value = "neutral")]
+    face: String,
+    #[arg(long, default_value_t = facesim::sim::Quality::Interactive)]
+    quality: facesim::sim::Quality,
+    /// The slider dragged 0 → 1 → 0.
+    #[arg(long, default_value = "jawOpen")]
+    slider: String,
+    /// Steps of the drag.
+    #[arg(long, default_value_t = 20)]
+    steps: usize,
+}
+
+pub fn bench_remote(args: &RemoteArgs) -> Result<()> {
+    check_sliders(std::slice::from_ref(&args.slider))?;
+    let sample = facesim::sample::Sample::load(&args.sample)
+        .with_context(|| format!("loading the sample from {}", args.sample.display()))?;
+    let face = sample
+        .session_faces()
+        .into_iter()
+        .find(|f| f.name == args.face)
+        .with_context(|| format!("the sample has no face '{}'", args.face))?;
+    let rows = facesim::bench::remote::bench_remote(face, args.quality, &args.slider, args.steps)?;
+    print!("{}", facesim::bench::remote::table(&rows));
+    Ok(())
+}
+
 /// Refuses any name that is not one of the expression sliders.
 pub fn check_sliders(names: &[String]) -> Result<()> {
     use facesim::rig::ExpressionCode;

@@ -131,6 +131,9 @@ enum BenchTarget {
     /// solved from rest, against the rig's own shape per render vertex (skin and lips, the
     /// mouth lining), with a crossing audit of the whole render surface.
     Shapes(cli_bench::ShapesArgs),
+    /// Remote editing: bytes per frame and slider-to-frame latency of a drag through the
+    /// remote protocol on loopback (JSON and binary geometry), beside the embedded session.
+    Remote(cli_bench::RemoteArgs),
     /// Contact on a face: per-frame time with contact on and off at each quality preset,
     /// time in broad phase, barrier and CCD, low-rank update against refactoring.
     Contact {
@@ -304,6 +307,9 @@ fn main() -> Result<()> {
         Command::Bench {
             target: BenchTarget::Shapes(args),
         } => cli_bench::bench_shapes(&args)?,
+        Command::Bench {
+            target: BenchTarget::Remote(args),
+        } => cli_bench::bench_remote(&args)?,
         Command::Bench {
             target:
                 BenchTarget::Editor {

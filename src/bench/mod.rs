@@ -3,6 +3,7 @@ pub mod contact;
 pub mod contact_sweep;
 pub mod editor;
 pub mod extremes;
+pub mod remote;
 pub mod sequence;
 pub mod shapes;
 pub mod solver;

@@ -4,14 +4,17 @@
 //! changed inputs and polls for frames over a single connection, so a fast-moving slider
 //! never queues messages.
 
-use std::io::{BufRead, BufReader, Write};
+use std::io::{BufRead, BufReader, Read, Write};
 use std::net::TcpStream;
 use std::sync::{Arc, Condvar, Mutex};
 
+use nalgebra::Point3;
+
 use super::face::FaceTopology;
-use super::frame::Frame;
+use super::frame::{Frame, vertex_normals};
 use super::handle::{FrameObserver, SessionHandle};
-use super::protocol::{Entries, FaceInfo, FaceRef, Message, Reply};
+use super::protocol::{Encoding, Entries, FaceInfo, FaceRef, Message, Reply};
+use super::wire::QuantizedGeometry;
 use super::worker::{Inputs, Request, apply_requests};
 use crate::rig::style::StyleCode;
 
@@ -30,6 +33,12 @@ pub enum ClientError {
     Refused(String),
 }
 
+/// Largest binary frame payload accepted, bytes (a full frame of the sample is ~0.3 MB).
+pub const MAX_PAYLOAD: usize = 64 << 20;
+
+/// Longest wait for one reply.
+pub const REPLY_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(20);
+
 /// One request/reply round trip.
 pub struct Connection {
     out: TcpStream,
@@ -43,21 +52,83 @@ impl Connection {
             source,
         })?;
         stream.set_nodelay(true)?;
+        // A server that vanished without closing (half-open) must not hang the editor: no
+        // reply takes longer than the longest `get_frame` wait (10 s).
+        stream.set_read_timeout(Some(REPLY_TIMEOUT))?;
         Ok(Connection {
             out: stream.try_clone()?,
             input: BufReader::new(stream),
         })
     }
 
+    /// Sends `message` and reads its reply (with a binary frame's payload).
     pub fn request(&mut self, message: &Message) -> Result<Reply, ClientError> {
         let mut line = serde_json::to_vec(message).expect("messages serialize");
         line.push(b'\n');
         self.out.write_all(&line)?;
-        let mut reply = String::new();
-        if self.input.read_line(&mut reply)? == 0 {
+        let mut text = String::new();
+        if self.input.read_line(&mut text)? == 0 {
             return Err(ClientError::Io(std::io::ErrorKind::UnexpectedEof.into()));
         }
-        serde_json::from_str(&reply).map_err(|e| ClientError::BadReply(format!("{e}: {reply}")))
+        let mut reply: Reply = serde_json::from_str(&text)
+            .map_err(|e| ClientError::BadReply(format!("{e}: {text}")))?;
+        if let Reply::FrameData { bytes, payload, .. } = &mut reply {
+            if *bytes > MAX_PAYLOAD {
+                return Err(ClientError::BadReply(format!(
+                    "a {bytes}-byte frame payload (at most {MAX_PAYLOAD})"
+                )));
+            }
+            payload.resize(*bytes, 0);
+            self.input.read_exact(payload)?;
+        }
+        Ok(reply)
+    }
+}
+
+/// Rebuilds whole frames from binary replies ([`super::wire`]), keeping the geometry last
+/// decoded as the base of the next delta.
+#[derive(Default)]
+pub struct FrameAssembler {
+    held: Option<QuantizedGeometry>,
+}
+
+impl FrameAssembler {
+    /// The frame whose geometry this client holds (what `get_frame`'s `base` says).
+    pub fn base(&self) -> Option<u64> {
+        self.held.as_ref().map(|h| h.index)
+    }
+
+    /// `frame` (a `frame_data` reply's) with the geometry of `payload`, and normals from
+    /// `topology`'s triangles as the server computes them.
+    pub fn assemble(
+        &mut self,
+        mut frame: Frame,
+        payload: &[u8],
+        topology: &FaceTopology,
+    ) -> Result<Frame, ClientError> {
+        let bad = |what: String| ClientError::BadReply(format!("frame {}: {what}", frame.index));
+        let geometry = QuantizedGeometry::decode(frame.index, payload, self.held.as_ref());
+        // Whatever went wrong, the next request asks for a full frame.
+        self.held = None;
+        let geometry = geometry.map_err(|e| bad(e.to_string()))?;
+        if geometry.positions.len() != topology.rest.len()
+            || geometry.fields.len() != frame.heatmaps.len()
+        {
+            return Err(bad("its geometry does not fit its face's topology".into()));
+        }
+        frame.positions = geometry.positions_cm();
+        let points: Vec<Point3<f64>> = frame
+            .positions
+            .iter()
+            .map(|p| Point3::new(p[0] as f64, p[1] as f64, p[2] as f64))
+            .collect();
+        frame.normals = vertex_normals(&points, &topology.triangles);
+        frame.mesh_positions = geometry.mesh_positions_cm();
+        for (k, h) in frame.heatmaps.iter_mut().enumerate() {
+            h.values = geometry.field_values(k);
+        }
+        self.held = Some(geometry);
+        Ok(frame)
     }
 }
 
@@ -79,9 +150,12 @@ pub struct RemoteSession {
 }
 
 impl RemoteSession {
-    pub fn connect(addr: &str) -> Result<Self, ClientError> {
+    /// Connects to `addr` and authenticates with `token` (what `serve` printed).
+    pub fn connect(addr: &str, token: &str) -> Result<Self, ClientError> {
         let mut conn = Connection::open(addr)?;
-        let (faces, inputs) = match conn.request(&Message::Hello)? {
+        let (faces, inputs) = match conn.request(&Message::Hello {
+            token: Some(token.to_string()),
+        })? {
             Reply::Hello { faces, inputs, .. } => (faces, *inputs),
             Reply::Error { message } => return Err(ClientError::Refused(message)),
             other => return Err(ClientError::BadReply(format!("{other:?}"))),
@@ -105,10 +179,10 @@ impl RemoteSession {
             }),
             Condvar::new(),
         ));
-        let thread_state = state.clone();
+        let (thread_state, thread_topologies) = (state.clone(), topologies.clone());
         std::thread::Builder::new()
             .name("facesim-remote".into())
-            .spawn(move || pump(conn, thread_state))
+            .spawn(move || pump(conn, thread_topologies, thread_state))
             .expect("spawning the client thread");
         Ok(RemoteSession {
             addr: addr.into(),
@@ -131,8 +205,13 @@ impl Drop for RemoteSession {
 }
 
 /// Sends changed inputs and fetches frames until the connection or the session closes.
-fn pump(mut conn: Connection, state: Arc<(Mutex<State>, Condvar)>) {
+fn pump(
+    mut conn: Connection,
+    topologies: Vec<Arc<FaceTopology>>,
+    state: Arc<(Mutex<State>, Condvar)>,
+) {
     let mut after = None;
+    let mut assembler = FrameAssembler::default();
     let result = (|| -> Result<(), ClientError> {
         loop {
             let send = {
@@ -172,11 +251,19 @@ fn pump(mut conn: Connection, state: Arc<(Mutex<State>, Condvar)>) {
                 after,
                 timeout_ms: Some(50),
                 geometry: Some(true),
+                encoding: Some(Encoding::Binary),
+                base: assembler.base(),
             })?;
-            if let Reply::Frame { frame } = reply {
+            if let Reply::FrameData { frame, payload, .. } = reply {
                 after = Some(frame.index);
+                let Some(topology) = topologies.get(frame.face) else {
+                    return Err(ClientError::BadReply(format!(
+                        "a frame of face {}",
+                        frame.face
+                    )));
+                };
+                let frame = Arc::new(assembler.assemble(*frame, &payload, topology)?);
                 let mut s = state.0.lock().unwrap_or_else(|e| e.into_inner());
-                let frame = Arc::new(*frame);
                 s.latest = Some(frame.clone());
                 for n in &s.notify {
                     n(&frame);

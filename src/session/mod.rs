@@ -14,13 +14,16 @@ pub mod handle;
 pub mod heatmap;
 pub mod protocol;
 pub mod server;
+pub mod token;
 pub mod track;
+pub mod wire;
 pub mod worker;
 
 pub use face::{FaceTopology, SessionFace};
 pub use frame::{Frame, FrameStats};
 pub use handle::SessionHandle;
 pub use heatmap::{FieldSource, Legend, ScalarField};
+pub use token::Token;
 pub use worker::{Display, Inputs, Request, Session, SessionError};
 
 #[cfg(test)]

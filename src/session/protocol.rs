@@ -1,17 +1,18 @@
 //! The remote protocol: line-delimited JSON over TCP (`facesim-editor serve`).
 //!
 //! Every line a client sends is one JSON object with an `"op"`; every line gets exactly one
-//! reply line, in order. Replies are `{"reply":"ok","generation":N}`,
+//! reply line, in order. The first line of a connection is `hello` with the session's token
+//! ([`super::server`] refuses anything else). Replies are `{"reply":"ok","generation":N}`,
 //! `{"reply":"error","message":"…"}` (the request changed nothing), or the data asked for.
 //!
 //! | op | fields | reply |
 //! |---|---|---|
-//! | `hello` | – | `hello`: protocol version, faces, code names and ranges, current inputs |
+//! | `hello` | `token` (first request only) | `hello`: protocol version, faces, code names and ranges, current inputs |
 //! | `set_codes` | `expression`: 19 weights or `{name: weight}` (others keep); `style`: 4 values or `{name: value}` | `ok` |
 //! | `set_face` | `face`: index or name (the style resets to the face's default) | `ok` |
 //! | `set_quality` | `quality`: `interactive`/`preview`/`final`; optional `refine`, `contact`: bool | `ok` |
 //! | `set_display` | optional `crosses`, `heatmaps`: bool (overlays the frames carry) | `ok` |
-//! | `get_frame` | optional `after` (frame index: wait for a newer one), `timeout_ms` (≤ 10000, default 2000), `geometry` (default true) | `frame` (or `error` on timeout) |
+//! | `get_frame` | optional `after` (frame index: wait for a newer one), `timeout_ms` (≤ 10000, default 2000), `geometry` (default true), `encoding` (`json`/`binary`), `base` (binary: the frame the client holds) | `frame`, or `frame_data` and its binary payload (or `error` on timeout) |
 //! | `get_topology` | `face`: index | `topology`: triangles, rigid flags, mesh edges, rest positions |
 //!
 //! Expression weights must lie in [0, 1] and style values in [-1, 1] (the sliders' ranges);
@@ -25,12 +26,13 @@ use serde::{Deserialize, Serialize};
 
 use super::face::FaceTopology;
 use super::frame::Frame;
+use super::wire::QuantizedGeometry;
 use super::worker::{Display, Inputs, Request, Session};
 use crate::rig::ExpressionCode;
 use crate::rig::style::StyleCode;
 use crate::sim::Quality;
 
-pub const PROTOCOL_VERSION: u32 = 1;
+pub const PROTOCOL_VERSION: u32 = 2;
 /// Longest accepted request line, bytes.
 pub const MAX_LINE: usize = 64 * 1024;
 const MAX_WAIT_MS: u64 = 10_000;
@@ -54,7 +56,12 @@ pub enum FaceRef {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "op", rename_all = "snake_case", deny_unknown_fields)]
 pub enum Message {
-    Hello,
+    /// The first request of every connection, with the session's token (the server refuses
+    /// anything else first); later hellos need none.
+    Hello {
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        token: Option<String>,
+    },
     SetCodes {
         #[serde(default, skip_serializing_if = "Option::is_none")]
         expression: Option<Entries>,
@@ -85,10 +92,26 @@ pub enum Message {
         timeout_ms: Option<u64>,
         #[serde(default, skip_serializing_if = "Option::is_none")]
         geometry: Option<bool>,
+        /// How the geometry travels (default JSON).
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        encoding: Option<Encoding>,
+        /// Binary only: the frame whose binary geometry this client holds (the server sends
+        /// a delta on it when it is the last one it sent this connection).
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        base: Option<u64>,
     },
     GetTopology {
         face: usize,
     },
+}
+
+/// How a frame's geometry travels: in the JSON reply, or as a binary payload after it
+/// ([`super::wire`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Encoding {
+    Json,
+    Binary,
 }
 
 /// What `hello` says about a face.
@@ -117,6 +140,14 @@ pub enum Reply {
     Frame {
         frame: Box<Frame>,
     },
+    /// A frame whose geometry (positions, mesh positions, heatmap values; normals left for
+    /// the client) follows the reply line as `bytes` bytes of [`super::wire`] payload.
+    FrameData {
+        frame: Box<Frame>,
+        bytes: usize,
+        #[serde(skip)]
+        payload: Vec<u8>,
+    },
     Topology {
         face: usize,
         topology: Box<FaceTopology>,
@@ -134,11 +165,47 @@ impl Reply {
     }
 }
 
+/// What the server remembers of one connection: the binary geometry it last sent, the base
+/// of the next delta.
+#[derive(Default)]
+pub struct Peer {
+    sent: Option<QuantizedGeometry>,
+}
+
 /// Parses and answers one request line against `session`.
-pub fn handle_line(session: &Session, line: &str) -> Reply {
+pub fn handle_line(session: &Session, peer: &mut Peer, line: &str) -> Reply {
     match serde_json::from_str::<Message>(line) {
-        Ok(m) => handle(session, m),
+        Ok(m) => handle(session, peer, m),
         Err(e) => Reply::error(format!("malformed request: {e}")),
+    }
+}
+
+/// `frame` with its geometry moved into a binary payload, a delta on what `peer` holds when
+/// the client says it holds it.
+fn binary_frame(peer: &mut Peer, mut frame: Frame, base: Option<u64>) -> Reply {
+    let fields: Vec<&[f32]> = frame.heatmaps.iter().map(|h| h.values.as_slice()).collect();
+    let geometry = match QuantizedGeometry::new(
+        frame.index,
+        &frame.positions,
+        &frame.mesh_positions,
+        &fields,
+    ) {
+        Ok(g) => g,
+        Err(e) => return Reply::error(format!("frame {}: {e}", frame.index)),
+    };
+    let held = peer.sent.as_ref().filter(|s| Some(s.index) == base);
+    let payload = geometry.encode(held);
+    peer.sent = Some(geometry);
+    frame.positions.clear();
+    frame.normals.clear();
+    frame.mesh_positions.clear();
+    for h in &mut frame.heatmaps {
+        h.values.clear();
+    }
+    Reply::FrameData {
+        frame: Box::new(frame),
+        bytes: payload.len(),
+        payload,
     }
 }
 
@@ -187,13 +254,13 @@ fn entries(
 }
 
 /// Answers one parsed request.
-pub fn handle(session: &Session, message: Message) -> Reply {
+pub fn handle(session: &Session, peer: &mut Peer, message: Message) -> Reply {
     let submit = |requests: Vec<Request>| match session.submit_all(&requests) {
         Ok(generation) => Reply::Ok { generation },
         Err(e) => Reply::error(e.to_string()),
     };
     match message {
-        Message::Hello => Reply::Hello {
+        Message::Hello { .. } => Reply::Hello {
             version: PROTOCOL_VERSION,
             faces: session
                 .faces()
@@ -271,6 +338,8 @@ pub fn handle(session: &Session, message: Message) -> Reply {
             after,
             timeout_ms,
             geometry,
+            encoding,
+            base,
         } => {
             let wait = timeout_ms.unwrap_or(2000);
             if wait > MAX_WAIT_MS {
@@ -279,6 +348,9 @@ pub fn handle(session: &Session, message: Message) -> Reply {
                 ));
             }
             match session.wait_newer(after, Duration::from_millis(wait)) {
+                Some(f) if geometry != Some(false) && encoding == Some(Encoding::Binary) => {
+                    binary_frame(peer, (*f).clone(), base)
+                }
                 Some(f) => {
                     let mut frame = (*f).clone();
                     if geometry == Some(false) {

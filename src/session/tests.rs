@@ -298,26 +298,71 @@ impl Session {
 }
 
 mod protocol_tests {
-    use std::io::{BufRead, BufReader, Write};
+    use std::io::{BufRead, BufReader, Read, Write};
     use std::net::{TcpListener, TcpStream};
+    use std::time::Duration;
 
     use super::*;
     use crate::session::client::Connection;
     use crate::session::protocol::{Entries, Message, Reply};
+    use crate::session::server::{AccessError, MAX_PENDING, ServerSettings};
+    use crate::session::token::{Token, TokenError};
+
+    const TOKEN: &str = "a-test-token-0123456789";
+
+    fn settings() -> ServerSettings {
+        ServerSettings::new(Token::new(TOKEN).unwrap())
+    }
 
     fn server() -> (Arc<Session>, String) {
+        server_with(settings())
+    }
+
+    fn server_with(settings: ServerSettings) -> (Arc<Session>, String) {
         let s = Arc::new(session(Quality::Interactive, false));
         let listener = TcpListener::bind("127.0.0.1:0").unwrap();
         let addr = listener.local_addr().unwrap().to_string();
         let served = s.clone();
-        std::thread::spawn(move || crate::session::server::serve(listener, served));
+        std::thread::spawn(move || crate::session::server::serve(listener, served, settings));
         (s, addr)
     }
 
-    fn raw(addr: &str) -> (TcpStream, BufReader<TcpStream>) {
+    fn hello() -> Message {
+        Message::Hello {
+            token: Some(TOKEN.into()),
+        }
+    }
+
+    /// A connection that has not said hello.
+    fn unauthenticated(addr: &str) -> (TcpStream, BufReader<TcpStream>) {
         let s = TcpStream::connect(addr).unwrap();
         let r = BufReader::new(s.try_clone().unwrap());
         (s, r)
+    }
+
+    /// A connection past its hello.
+    fn raw(addr: &str) -> (TcpStream, BufReader<TcpStream>) {
+        let (mut out, mut input) = unauthenticated(addr);
+        let line = serde_json::to_string(&hello()).unwrap();
+        assert_eq!(ask(&mut out, &mut input, &line)["reply"], "hello");
+        (out, input)
+    }
+
+    /// Whether the server has closed `input` (EOF or reset), reading past any replies; false
+    /// if it is still open after 5 s.
+    fn closed_by_server(input: &mut BufReader<TcpStream>) -> bool {
+        input
+            .get_ref()
+            .set_read_timeout(Some(Duration::from_secs(5)))
+            .unwrap();
+        let mut rest = Vec::new();
+        match input.read_to_end(&mut rest) {
+            Ok(_) => true,
+            Err(e) => !matches!(
+                e.kind(),
+                std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+            ),
+        }
     }
 
     fn ask(out: &mut TcpStream, input: &mut BufReader<TcpStream>, line: &str) -> serde_json::Value {
@@ -336,7 +381,7 @@ mod protocol_tests {
             faces,
             expression_names,
             ..
-        } = c.request(&Message::Hello).unwrap()
+        } = c.request(&hello()).unwrap()
         else {
             panic!("hello")
         };
@@ -358,6 +403,8 @@ mod protocol_tests {
                 after: Some(f.index - 1),
                 timeout_ms: Some(5000),
                 geometry: Some(true),
+                encoding: None,
+                base: None,
             })
             .unwrap()
         else {
@@ -492,10 +539,222 @@ mod protocol_tests {
         assert!(n < 150, "600 slider messages must coalesce, got {n} frames");
         // The server still answers new clients.
         let mut c = Connection::open(&addr).unwrap();
-        assert!(matches!(
-            c.request(&Message::Hello).unwrap(),
-            Reply::Hello { .. }
-        ));
+        assert!(matches!(c.request(&hello()).unwrap(), Reply::Hello { .. }));
+    }
+
+    /// Binary frames: the geometry of a JSON frame within the quantum (normals and heatmaps
+    /// rebuilt), at a fraction of its size, and a delta on the frame the client holds.
+    #[test]
+    fn binary_frames_carry_the_same_geometry_in_few_bytes() {
+        use crate::session::client::FrameAssembler;
+        use crate::session::protocol::Encoding;
+        use crate::session::wire::QUANTUM;
+        let (s, addr) = server();
+        let mut c = Connection::open(&addr).unwrap();
+        c.request(&hello()).unwrap();
+        let Reply::Topology { topology, .. } =
+            c.request(&Message::GetTopology { face: 0 }).unwrap()
+        else {
+            panic!("topology")
+        };
+        let mut assembler = FrameAssembler::default();
+        let fetch = |c: &mut Connection, index: u64, encoding, base| {
+            c.request(&Message::GetFrame {
+                after: Some(index - 1),
+                timeout_ms: Some(5000),
+                geometry: None,
+                encoding: Some(encoding),
+                base,
+            })
+            .unwrap()
+        };
+        for (step, jaw) in [0.3, 0.35].into_iter().enumerate() {
+            let g = s.submit(expression("jawOpen", jaw)).unwrap();
+            let f = s.wait_generation(g, WAIT).unwrap();
+            let Reply::Frame { frame: json } = fetch(&mut c, f.index, Encoding::Json, None) else {
+                panic!("json frame")
+            };
+            let base = assembler.base();
+            assert_eq!(base.is_some(), step > 0);
+            let Reply::FrameData { frame, payload, .. } =
+                fetch(&mut c, f.index, Encoding::Binary, base)
+            else {
+                panic!("binary frame")
+            };
+            let binary = assembler.assemble(*frame, &payload, &topology).unwrap();
+            assert_eq!(binary.index, json.index);
+            assert_eq!(binary.stats, json.stats);
+            let json_bytes = serde_json::to_vec(&Reply::Frame {
+                frame: json.clone(),
+            })
+            .unwrap()
+            .len();
+            assert!(
+                payload.len() * 10 < json_bytes,
+                "{} payload bytes against {json_bytes} of JSON",
+                payload.len()
+            );
+            let worst = |a: &[[f32; 3]], b: &[[f32; 3]]| {
+                assert_eq!(a.len(), b.len());
+                a.iter()
+                    .zip(b)
+                    .flat_map(|(p, q)| (0..3).map(move |c| (p[c] - q[c]).abs()))
+                    .fold(0.0f32, f32::max)
+            };
+            let quantum = (0.5 * QUANTUM) as f32 + 1e-5;
+            assert!(worst(&binary.positions, &json.positions) <= quantum);
+            assert!(worst(&binary.mesh_positions, &json.mesh_positions) <= quantum);
+            assert!(worst(&binary.normals, &json.normals) < 0.05);
+            assert_eq!(binary.heatmaps.len(), json.heatmaps.len());
+            assert!(!json.heatmaps.is_empty());
+            for (b, j) in binary.heatmaps.iter().zip(&json.heatmaps) {
+                assert_eq!((&b.name, b.legend.max), (&j.name, j.legend.max));
+                for (x, y) in b.values.iter().zip(&j.values) {
+                    assert!(
+                        (x - y).abs() <= y.abs() / 2048.0 + 1e-7,
+                        "{}: {x} {y}",
+                        b.name
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn connections_without_the_token_are_refused_and_closed() {
+        let (s, addr) = server();
+        let before = s.inputs();
+        for (first, needle) in [
+            (
+                r#"{"op":"set_codes","expression":{"jawOpen":1}}"#,
+                "authenticate first",
+            ),
+            (r#"{"op":"hello"}"#, "authenticate first"),
+            (
+                r#"{"op":"hello","token":"a-test-token-0123456780"}"#,
+                "wrong token",
+            ),
+            (r#"{"op":"hello","token":""}"#, "wrong token"),
+            ("not json", "authenticate first"),
+        ] {
+            let (mut out, mut input) = unauthenticated(&addr);
+            let reply = ask(&mut out, &mut input, first);
+            assert_eq!(reply["reply"], "error", "{first} → {reply}");
+            let message = reply["message"].as_str().unwrap();
+            assert!(message.contains(needle), "{first} → {message}");
+            assert!(closed_by_server(&mut input), "{first}: still open");
+        }
+        assert_eq!(s.inputs(), before, "refused clients change nothing");
+        // A later hello on an authenticated connection needs no token.
+        let (mut out, mut input) = raw(&addr);
+        assert_eq!(
+            ask(&mut out, &mut input, r#"{"op":"hello"}"#)["reply"],
+            "hello"
+        );
+    }
+
+    #[test]
+    fn silent_connections_never_lock_out_a_client_with_the_token() {
+        let (s, addr) = server();
+        let (mut editor, mut editor_in) = raw(&addr);
+        let silent: Vec<_> = (0..64).map(|_| unauthenticated(&addr)).collect();
+        // The authenticated client still edits, and a new one still gets in, long before
+        // the silent ones' 5 s handshake timeout.
+        let started = std::time::Instant::now();
+        let reply = ask(
+            &mut editor,
+            &mut editor_in,
+            r#"{"op":"set_codes","expression":{"jawOpen":0.4}}"#,
+        );
+        assert_eq!(reply["reply"], "ok", "{reply}");
+        let (mut late, mut late_in) = raw(&addr);
+        let reply = ask(
+            &mut late,
+            &mut late_in,
+            r#"{"op":"get_frame","geometry":false}"#,
+        );
+        assert_eq!(reply["reply"], "frame", "{reply}");
+        assert!(started.elapsed() < Duration::from_secs(4));
+        assert_eq!(s.inputs().codes.expression.get("jawOpen"), Some(0.4));
+        // Each connection past MAX_PENDING pushed out the oldest silent one, the late
+        // client's too.
+        let pushed_out = 64 - MAX_PENDING + 1;
+        let mut closed = 0;
+        for (_, mut input) in silent.into_iter().take(pushed_out) {
+            input
+                .get_ref()
+                .set_read_timeout(Some(Duration::from_secs(2)))
+                .unwrap();
+            let mut rest = Vec::new();
+            closed += usize::from(input.read_to_end(&mut rest).is_ok());
+        }
+        assert_eq!(closed, pushed_out);
+    }
+
+    #[test]
+    fn silent_and_stalled_clients_time_out() {
+        let (s, addr) = server_with(ServerSettings {
+            handshake_timeout: Duration::from_millis(200),
+            idle_timeout: Duration::from_millis(400),
+            write_timeout: Duration::from_millis(300),
+            ..settings()
+        });
+        // Never says hello.
+        let (_out, mut input) = unauthenticated(&addr);
+        let mut line = String::new();
+        input.read_line(&mut line).unwrap();
+        assert!(line.contains("no hello within"), "{line}");
+        assert!(closed_by_server(&mut input));
+        // Says hello, then nothing: what a half-open client looks like from the server.
+        let (_out, mut input) = raw(&addr);
+        line.clear();
+        input.read_line(&mut line).unwrap();
+        assert!(line.contains("no request for"), "{line}");
+        assert!(closed_by_server(&mut input));
+        // Asks for frame after frame and never reads them: the server's writes stall and it
+        // closes the client instead of buffering its replies.
+        let (out, mut input) = raw(&addr);
+        let mut flood = out.try_clone().unwrap();
+        let writer = std::thread::spawn(move || {
+            let line = b"{\"op\":\"get_frame\"}\n";
+            for _ in 0..100_000 {
+                if flood.write_all(line).is_err() {
+                    return;
+                }
+            }
+        });
+        std::thread::sleep(Duration::from_secs(2));
+        assert!(closed_by_server(&mut input), "a stalled client is closed");
+        writer.join().unwrap();
+        // The server still serves others.
+        let (mut out, mut input) = raw(&addr);
+        assert_eq!(
+            ask(
+                &mut out,
+                &mut input,
+                r#"{"op":"set_quality","quality":"preview"}"#
+            )["reply"],
+            "ok"
+        );
+        assert_eq!(s.inputs().quality, Quality::Preview);
+    }
+
+    #[test]
+    fn serving_beyond_loopback_needs_a_chosen_token() {
+        let local = "127.0.0.1:7878".parse().unwrap();
+        let public = "0.0.0.0:7878".parse().unwrap();
+        let (generated, shown) = ServerSettings::for_listen(local, None).unwrap();
+        assert!(shown && generated.token.reveal().len() == 32);
+        assert_eq!(
+            ServerSettings::for_listen(public, None).unwrap_err(),
+            AccessError::PublicWithoutToken(public)
+        );
+        let (chosen, shown) = ServerSettings::for_listen(public, Some(TOKEN)).unwrap();
+        assert!(!shown && chosen.token.accepts(TOKEN));
+        assert_eq!(
+            ServerSettings::for_listen(local, Some("hunter2")).unwrap_err(),
+            AccessError::Token(TokenError::TooShort(7))
+        );
     }
 }
 

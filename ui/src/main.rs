@@ -9,6 +9,7 @@ use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
 use facesim::session::SessionHandle;
 use facesim::session::client::RemoteSession;
+use facesim::session::server::ServerSettings;
 use facesim::sim::Quality;
 
 use facesim_ui::rerun_log::{RerunLogger, RerunTarget};
@@ -28,6 +29,10 @@ struct Cli {
     /// Talk to a `facesim-editor serve` session at this address instead of simulating here.
     #[arg(long)]
     remote: Option<String>,
+    /// The remote session's token (`serve` prints it), or set $FACESIM_TOKEN. With `serve`:
+    /// the token clients must give (default: a generated one, on loopback only).
+    #[arg(long, global = true)]
+    token: Option<String>,
     /// Also stream frames to rerun: `spawn`, `connect [URL]` or `save FILE.rrd`.
     #[arg(long, global = true, num_args = 1..=2, value_names = ["MODE", "ARG"])]
     rerun: Vec<String>,
@@ -43,8 +48,8 @@ struct Cli {
 enum Command {
     /// Run the session headless and serve the remote protocol (README, "Remote mode").
     Serve {
-        /// Address to listen on, e.g. 127.0.0.1:7878.
-        #[arg(long)]
+        /// Address to listen on. Beyond loopback it needs `--token` (README, "Remote mode").
+        #[arg(long, default_value = "127.0.0.1:7878")]
         listen: String,
     },
     /// Simulate an animation track and write it out: the core formats (usd, pc2, obj, gltf)
@@ -70,6 +75,10 @@ fn attach_rerun(session: &dyn SessionHandle, target: &RerunTarget) -> Result<()>
 
 fn main() -> Result<()> {
     let cli = Cli::parse();
+    let token = cli
+        .token
+        .clone()
+        .or_else(|| std::env::var(facesim::session::token::TOKEN_ENV).ok());
     let rerun = match cli.rerun.as_slice() {
         [] => None,
         words => Some(
@@ -90,6 +99,10 @@ fn main() -> Result<()> {
             Ok(())
         }
         Some(Command::Serve { listen }) => {
+            let listener =
+                TcpListener::bind(&listen).with_context(|| format!("listening on {listen}"))?;
+            let addr = listener.local_addr()?;
+            let (settings, generated) = ServerSettings::for_listen(addr, token.as_deref())?;
             let session = Arc::new(faces::open_sample_session(
                 &cli.sample,
                 cli.quality,
@@ -98,15 +111,23 @@ fn main() -> Result<()> {
             if let Some(t) = &rerun {
                 attach_rerun(session.as_ref(), t)?;
             }
-            let listener =
-                TcpListener::bind(&listen).with_context(|| format!("listening on {listen}"))?;
-            eprintln!("facesim session listening on {}", listener.local_addr()?);
-            facesim::session::server::serve(listener, session)?;
+            eprintln!("facesim session listening on {addr}");
+            if generated {
+                eprintln!(
+                    "connect with: facesim-editor --remote {addr} --token {}",
+                    settings.token.reveal()
+                );
+            }
+            facesim::session::server::serve(listener, session, settings)?;
             Ok(())
         }
         None => {
             let session: Arc<dyn SessionHandle> = match &cli.remote {
-                Some(addr) => Arc::new(RemoteSession::connect(addr)?),
+                Some(addr) => {
+                    let token = token
+                        .context("--remote needs the session's token: --token or $FACESIM_TOKEN")?;
+                    Arc::new(RemoteSession::connect(addr, &token)?)
+                }
                 None => Arc::new(faces::open_sample_session(
                     &cli.sample,
                     cli.quality,

@@ -69,6 +69,27 @@ fn the_stage2_networks_drive_the_face_from_the_slider() {
     jaw_slider_changes_the_face(session);
 }
 
+/// And on a remote session (`--remote`): the sample served on loopback behind a token, the
+/// frames arriving as binary deltas and rebuilt (normals, heatmaps) by the client.
+#[test]
+fn the_slider_drives_a_remote_session() {
+    use facesim::session::Token;
+    use facesim::session::client::RemoteSession;
+    use facesim::session::server::{ServerSettings, serve};
+    let served = Arc::new(
+        open_sample_session(&sample_dir(), Quality::Interactive, Actuation::Basis).unwrap(),
+    );
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let addr = listener.local_addr().unwrap().to_string();
+    let token = Token::generate();
+    let settings = ServerSettings::new(token.clone());
+    std::thread::spawn(move || serve(listener, served, settings));
+    assert!(RemoteSession::connect(&addr, "not-the-token-at-all").is_err());
+    let session: Arc<dyn SessionHandle> =
+        Arc::new(RemoteSession::connect(&addr, token.reveal()).unwrap());
+    jaw_slider_changes_the_face(session);
+}
+
 fn jaw_slider_changes_the_face(session: Arc<dyn SessionHandle>) {
     let mut harness = Harness::builder()
         .with_size(egui::vec2(1200.0, 800.0))
