@@ -96,6 +96,35 @@ impl ExpressionCode {
         "mouthUpperUp_R",
     ];
 
+    /// The sliders grouped by the part of the face they move, as the editors show them.
+    pub const GROUPS: [(&'static str, &'static [&'static str]); 4] = [
+        ("Jaw", &["jawOpen", "jawLeft", "jawRight", "jawForward"]),
+        (
+            "Lips",
+            &[
+                "mouthClose",
+                "mouthPucker",
+                "mouthFunnel",
+                "mouthRollLower",
+                "mouthRollUpper",
+                "mouthPress_L",
+                "mouthPress_R",
+            ],
+        ),
+        (
+            "Mouth corners",
+            &[
+                "mouthSmile_L",
+                "mouthSmile_R",
+                "mouthFrown_L",
+                "mouthFrown_R",
+                "mouthStretch_L",
+                "mouthStretch_R",
+            ],
+        ),
+        ("Upper lip", &["mouthUpperUp_L", "mouthUpperUp_R"]),
+    ];
+
     /// The neutral expression (all weights 0).
     pub const NEUTRAL: ExpressionCode = ExpressionCode([0.0; ExpressionCode::LEN]);
 
@@ -137,6 +166,18 @@ mod tests {
         sorted.dedup();
         assert_eq!(sorted.len(), SHAPE_NAMES.len());
         assert!(!is_known_shape("tongueOut"));
+    }
+
+    #[test]
+    fn the_groups_hold_every_slider_once() {
+        let mut grouped: Vec<&str> = ExpressionCode::GROUPS
+            .iter()
+            .flat_map(|(_, names)| names.iter().copied())
+            .collect();
+        grouped.sort_unstable();
+        let mut names = ExpressionCode::NAMES.to_vec();
+        names.sort_unstable();
+        assert_eq!(grouped, names);
     }
 
     #[test]

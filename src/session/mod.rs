@@ -16,6 +16,7 @@ pub mod protocol;
 pub mod server;
 pub mod token;
 pub mod track;
+pub mod web;
 pub mod wire;
 pub mod worker;
 

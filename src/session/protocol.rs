@@ -131,6 +131,9 @@ pub enum Reply {
         version: u32,
         faces: Vec<FaceInfo>,
         expression_names: Vec<String>,
+        /// The sliders grouped as the editors show them: `(group, names)`.
+        #[serde(default)]
+        expression_groups: Vec<(String, Vec<String>)>,
         style_names: Vec<String>,
         inputs: Box<Inputs>,
     },
@@ -276,6 +279,10 @@ pub fn handle(session: &Session, peer: &mut Peer, message: Message) -> Reply {
             expression_names: ExpressionCode::NAMES
                 .iter()
                 .map(|s| s.to_string())
+                .collect(),
+            expression_groups: ExpressionCode::GROUPS
+                .iter()
+                .map(|(g, names)| (g.to_string(), names.iter().map(|n| n.to_string()).collect()))
                 .collect(),
             style_names: StyleCode::NAMES.iter().map(|s| s.to_string()).collect(),
             inputs: Box::new(session.inputs()),

@@ -68,13 +68,17 @@ impl ServerSettings {
         }
     }
 
-    /// Settings for listening on `addr`: the given token, or a generated one on loopback
-    /// (module doc). The flag says whether the token was generated (and must be shown).
-    pub fn for_listen(addr: SocketAddr, given: Option<&str>) -> Result<(Self, bool), AccessError> {
-        match given {
-            Some(text) => Ok((ServerSettings::new(Token::new(text)?), false)),
-            None if addr.ip().is_loopback() => Ok((ServerSettings::new(Token::generate()), true)),
-            None => Err(AccessError::PublicWithoutToken(addr)),
+    /// Settings for listening on `addrs`: the given token, or a generated one when all are
+    /// loopback (module doc). The flag says whether the token was generated (and must be
+    /// shown).
+    pub fn for_listen(
+        addrs: &[SocketAddr],
+        given: Option<&str>,
+    ) -> Result<(Self, bool), AccessError> {
+        match (given, addrs.iter().find(|a| !a.ip().is_loopback())) {
+            (Some(text), _) => Ok((ServerSettings::new(Token::new(text)?), false)),
+            (None, None) => Ok((ServerSettings::new(Token::generate()), true)),
+            (None, Some(public)) => Err(AccessError::PublicWithoutToken(*public)),
         }
     }
 }
@@ -125,140 +129,202 @@ pub fn serve(
     session: Arc<Session>,
     settings: ServerSettings,
 ) -> std::io::Result<()> {
+    accept_each(listener, session, settings, |stream, client| {
+        let mut channel = LineChannel::new(stream)?;
+        client.serve(&mut channel)
+    })
+}
+
+/// Admits each connection of `listener` through a shared [`Gate`] and runs `serve_one` on it
+/// on its own thread (a disconnect, timeout or I/O error ends that client only).
+pub(crate) fn accept_each(
+    listener: TcpListener,
+    session: Arc<Session>,
+    settings: ServerSettings,
+    serve_one: impl Fn(TcpStream, &Client) -> std::io::Result<()> + Send + Sync + 'static,
+) -> std::io::Result<()> {
     let gate = Arc::new(Gate::default());
     let settings = Arc::new(settings);
+    let serve_one = Arc::new(serve_one);
     for stream in listener.incoming() {
         let Ok(stream) = stream else { continue };
         let Ok(id) = gate.admit(&stream) else {
             continue;
         };
-        let (session, settings, gate) = (session.clone(), settings.clone(), gate.clone());
+        let client = Client {
+            id,
+            session: session.clone(),
+            settings: settings.clone(),
+            gate: gate.clone(),
+            control: match stream.try_clone() {
+                Ok(c) => c,
+                Err(_) => continue,
+            },
+        };
+        let serve_one = serve_one.clone();
         std::thread::spawn(move || {
-            // A disconnect, timeout or I/O error ends this client only.
-            let _ = serve_client(stream, id, &session, &settings, &gate);
-            gate.leave_pending(id);
+            let _ = client.prepare().and_then(|()| serve_one(stream, &client));
+            client.gate.leave_pending(client.id);
         });
     }
     Ok(())
 }
 
-/// Writes the reply line, and a binary frame's payload after it.
-fn send(stream: &mut TcpStream, reply: &Reply) -> std::io::Result<()> {
-    let mut line = serde_json::to_vec(reply).expect("replies serialize");
-    line.push(b'\n');
-    if let Reply::FrameData { payload, .. } = reply {
-        line.extend_from_slice(payload);
-    }
-    stream.write_all(&line)
-}
-
-/// One request line as read.
-enum Line {
+/// One request as a channel delivers it.
+pub(crate) enum Incoming {
     Closed,
     TooLong,
     Text(String),
-    NotUtf8,
+    /// Bytes that are not a UTF-8 text request.
+    NotText,
 }
 
-fn read_line(reader: &mut BufReader<TcpStream>, buffer: &mut Vec<u8>) -> std::io::Result<Line> {
-    loop {
-        buffer.clear();
-        let n = reader
-            .by_ref()
-            .take(MAX_LINE as u64 + 1)
-            .read_until(b'\n', buffer)?;
-        if n == 0 {
-            return Ok(Line::Closed);
+/// A client's transport: requests in, replies out (a line protocol or WebSocket messages).
+pub(crate) trait Channel {
+    fn receive(&mut self) -> std::io::Result<Incoming>;
+    fn send(&mut self, reply: &Reply) -> std::io::Result<()>;
+}
+
+/// The TCP line protocol: a JSON line per request and per reply, a binary frame's payload
+/// right after its reply line.
+struct LineChannel {
+    reader: BufReader<TcpStream>,
+    out: TcpStream,
+    buffer: Vec<u8>,
+}
+
+impl LineChannel {
+    fn new(stream: TcpStream) -> std::io::Result<Self> {
+        Ok(LineChannel {
+            out: stream.try_clone()?,
+            reader: BufReader::new(stream),
+            buffer: Vec::new(),
+        })
+    }
+}
+
+impl Channel for LineChannel {
+    fn receive(&mut self) -> std::io::Result<Incoming> {
+        loop {
+            self.buffer.clear();
+            let n = self
+                .reader
+                .by_ref()
+                .take(MAX_LINE as u64 + 1)
+                .read_until(b'\n', &mut self.buffer)?;
+            if n == 0 {
+                return Ok(Incoming::Closed);
+            }
+            if self.buffer.last() != Some(&b'\n') && n > MAX_LINE {
+                return Ok(Incoming::TooLong);
+            }
+            match std::str::from_utf8(&self.buffer) {
+                Ok(text) if text.trim().is_empty() => continue,
+                Ok(text) => return Ok(Incoming::Text(text.trim().to_string())),
+                Err(_) => return Ok(Incoming::NotText),
+            }
         }
-        if buffer.last() != Some(&b'\n') && n > MAX_LINE {
-            return Ok(Line::TooLong);
+    }
+
+    fn send(&mut self, reply: &Reply) -> std::io::Result<()> {
+        let mut line = serde_json::to_vec(reply).expect("replies serialize");
+        line.push(b'\n');
+        if let Reply::FrameData { payload, .. } = reply {
+            line.extend_from_slice(payload);
         }
-        match std::str::from_utf8(buffer) {
-            Ok(text) if text.trim().is_empty() => continue,
-            Ok(text) => return Ok(Line::Text(text.trim().to_string())),
-            Err(_) => return Ok(Line::NotUtf8),
-        }
+        self.out.write_all(&line)
     }
 }
 
 /// Whether an I/O error is a read timeout (the platform says either).
-fn timed_out(e: &std::io::Error) -> bool {
+pub(crate) fn timed_out(e: &std::io::Error) -> bool {
     matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut)
 }
 
-/// Authenticates one client, then answers its lines until it disconnects or times out.
-fn serve_client(
-    stream: TcpStream,
+/// One admitted connection: what it is served from and under which rules.
+pub(crate) struct Client {
     id: u64,
-    session: &Session,
-    settings: &ServerSettings,
-    gate: &Gate,
-) -> std::io::Result<()> {
-    stream.set_nodelay(true)?;
-    stream.set_read_timeout(Some(settings.handshake_timeout))?;
-    stream.set_write_timeout(Some(settings.write_timeout))?;
-    let mut out = stream.try_clone()?;
-    let mut reader = BufReader::new(stream);
-    let mut buffer = Vec::new();
-    let refuse = |out: &mut TcpStream, why: &str| send(out, &Reply::error(why));
-    let first = match read_line(&mut reader, &mut buffer) {
-        Ok(Line::Text(text)) => text,
-        Ok(Line::Closed) => return Ok(()),
-        Ok(Line::TooLong | Line::NotUtf8) => {
-            return refuse(&mut out, "the first request must be a hello with the token");
-        }
-        Err(e) if timed_out(&e) => {
-            let secs = settings.handshake_timeout.as_secs_f64();
-            return refuse(&mut out, &format!("no hello within {secs} s; closing"));
-        }
-        Err(e) => return Err(e),
-    };
-    let hello = match serde_json::from_str::<Message>(&first) {
-        Ok(Message::Hello { token: Some(token) }) if settings.token.accepts(&token) => {
-            Message::Hello { token: None }
-        }
-        Ok(Message::Hello { token: Some(_) }) => {
-            return refuse(&mut out, "wrong token; closing");
-        }
-        _ => {
-            return refuse(
-                &mut out,
-                "authenticate first: the first request is {\"op\":\"hello\",\"token\":\"…\"} \
-                 with the token the server printed; closing",
-            );
-        }
-    };
-    gate.leave_pending(id);
-    if gate.clients.fetch_add(1, Ordering::SeqCst) >= MAX_CLIENTS {
-        gate.clients.fetch_sub(1, Ordering::SeqCst);
-        return refuse(
-            &mut out,
-            &format!("the server is full ({MAX_CLIENTS} clients)"),
-        );
+    session: Arc<Session>,
+    settings: Arc<ServerSettings>,
+    gate: Arc<Gate>,
+    /// The socket, for its timeouts.
+    control: TcpStream,
+}
+
+impl Client {
+    /// Handshake and write timeouts on the fresh socket.
+    fn prepare(&self) -> std::io::Result<()> {
+        self.control.set_nodelay(true)?;
+        self.control
+            .set_read_timeout(Some(self.settings.handshake_timeout))?;
+        self.control
+            .set_write_timeout(Some(self.settings.write_timeout))
     }
-    let _slot = Slot(gate);
-    reader
-        .get_ref()
-        .set_read_timeout(Some(settings.idle_timeout))?;
-    let mut peer = Peer::default();
-    send(&mut out, &handle(session, &mut peer, hello))?;
-    loop {
-        let reply = match read_line(&mut reader, &mut buffer) {
-            Ok(Line::Text(text)) => handle_line(session, &mut peer, &text),
-            Ok(Line::Closed) => return Ok(()),
-            Ok(Line::NotUtf8) => Reply::error("request is not UTF-8"),
-            Ok(Line::TooLong) => {
-                return refuse(
-                    &mut out,
-                    &format!("request line longer than {MAX_LINE} bytes; closing"),
-                );
+
+    /// Authenticates the client on `channel`, then answers its requests until it
+    /// disconnects or times out.
+    pub(crate) fn serve(&self, channel: &mut impl Channel) -> std::io::Result<()> {
+        let settings = &self.settings;
+        let refuse = |channel: &mut dyn Channel, why: &str| channel.send(&Reply::error(why));
+        let first = match channel.receive() {
+            Ok(Incoming::Text(text)) => text,
+            Ok(Incoming::Closed) => return Ok(()),
+            Ok(Incoming::TooLong | Incoming::NotText) => {
+                return refuse(channel, "the first request must be a hello with the token");
             }
             Err(e) if timed_out(&e) => {
-                let secs = settings.idle_timeout.as_secs_f64();
-                return refuse(&mut out, &format!("no request for {secs} s; closing"));
+                let secs = settings.handshake_timeout.as_secs_f64();
+                return refuse(channel, &format!("no hello within {secs} s; closing"));
             }
             Err(e) => return Err(e),
         };
-        send(&mut out, &reply)?;
+        let hello = match serde_json::from_str::<Message>(&first) {
+            Ok(Message::Hello { token: Some(token) }) if settings.token.accepts(&token) => {
+                Message::Hello { token: None }
+            }
+            Ok(Message::Hello { token: Some(_) }) => {
+                return refuse(channel, "wrong token; closing");
+            }
+            _ => {
+                return refuse(
+                    channel,
+                    "authenticate first: the first request is {\"op\":\"hello\",\"token\":\"…\"} \
+                     with the token the server printed; closing",
+                );
+            }
+        };
+        let gate = &self.gate;
+        gate.leave_pending(self.id);
+        if gate.clients.fetch_add(1, Ordering::SeqCst) >= MAX_CLIENTS {
+            gate.clients.fetch_sub(1, Ordering::SeqCst);
+            return refuse(
+                channel,
+                &format!("the server is full ({MAX_CLIENTS} clients)"),
+            );
+        }
+        let _slot = Slot(gate);
+        self.control.set_read_timeout(Some(settings.idle_timeout))?;
+        let session = &self.session;
+        let mut peer = Peer::default();
+        channel.send(&handle(session, &mut peer, hello))?;
+        loop {
+            let reply = match channel.receive() {
+                Ok(Incoming::Text(text)) => handle_line(session, &mut peer, &text),
+                Ok(Incoming::Closed) => return Ok(()),
+                Ok(Incoming::NotText) => Reply::error("a request is JSON text"),
+                Ok(Incoming::TooLong) => {
+                    return refuse(
+                        channel,
+                        &format!("request longer than {MAX_LINE} bytes; closing"),
+                    );
+                }
+                Err(e) if timed_out(&e) => {
+                    let secs = settings.idle_timeout.as_secs_f64();
+                    return refuse(channel, &format!("no request for {secs} s; closing"));
+                }
+                Err(e) => return Err(e),
+            };
+            channel.send(&reply)?;
+        }
     }
 }

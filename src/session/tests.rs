@@ -743,16 +743,16 @@ mod protocol_tests {
     fn serving_beyond_loopback_needs_a_chosen_token() {
         let local = "127.0.0.1:7878".parse().unwrap();
         let public = "0.0.0.0:7878".parse().unwrap();
-        let (generated, shown) = ServerSettings::for_listen(local, None).unwrap();
+        let (generated, shown) = ServerSettings::for_listen(&[local], None).unwrap();
         assert!(shown && generated.token.reveal().len() == 32);
         assert_eq!(
-            ServerSettings::for_listen(public, None).unwrap_err(),
+            ServerSettings::for_listen(&[local, public], None).unwrap_err(),
             AccessError::PublicWithoutToken(public)
         );
-        let (chosen, shown) = ServerSettings::for_listen(public, Some(TOKEN)).unwrap();
+        let (chosen, shown) = ServerSettings::for_listen(&[public], Some(TOKEN)).unwrap();
         assert!(!shown && chosen.token.accepts(TOKEN));
         assert_eq!(
-            ServerSettings::for_listen(local, Some("hunter2")).unwrap_err(),
+            ServerSettings::for_listen(&[local], Some("hunter2")).unwrap_err(),
             AccessError::Token(TokenError::TooShort(7))
         );
     }

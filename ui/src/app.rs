@@ -17,35 +17,6 @@ use nalgebra::Point3;
 use crate::scene::{self, Toggles};
 use crate::viewport::{OrbitCamera, Scene, ViewportCallback, ViewportResources};
 
-/// The expression sliders by face region.
-pub const REGIONS: [(&str, &[&str]); 4] = [
-    ("Jaw", &["jawOpen", "jawLeft", "jawRight", "jawForward"]),
-    (
-        "Lips",
-        &[
-            "mouthClose",
-            "mouthPucker",
-            "mouthFunnel",
-            "mouthRollLower",
-            "mouthRollUpper",
-            "mouthPress_L",
-            "mouthPress_R",
-        ],
-    ),
-    (
-        "Mouth corners",
-        &[
-            "mouthSmile_L",
-            "mouthSmile_R",
-            "mouthFrown_L",
-            "mouthFrown_R",
-            "mouthStretch_L",
-            "mouthStretch_R",
-        ],
-    ),
-    ("Upper lip", &["mouthUpperUp_L", "mouthUpperUp_R"]),
-];
-
 /// The timeline: keyframes, playback and recording of the codes.
 pub struct Timeline {
     pub track: Track,
@@ -163,7 +134,7 @@ impl EditorApp {
         });
         ui.checkbox(&mut self.link_sides, "link left/right");
         let mut expression = inputs.codes.expression;
-        for (region, names) in REGIONS {
+        for (region, names) in ExpressionCode::GROUPS {
             ui.label(RichText::new(region).strong());
             for name in names {
                 let i = ExpressionCode::index_of(name).expect("region names are code names");

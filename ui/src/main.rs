@@ -51,6 +51,10 @@ enum Command {
         /// Address to listen on. Beyond loopback it needs `--token` (README, "Remote mode").
         #[arg(long, default_value = "127.0.0.1:7878")]
         listen: String,
+        /// Also serve the browser editor (a page and its WebSocket) at this address, e.g.
+        /// 127.0.0.1:8080; open the URL it prints.
+        #[arg(long)]
+        web: Option<String>,
     },
     /// Simulate an animation track and write it out: the core formats (usd, pc2, obj, gltf)
     /// plus rrd, a rerun recording (README, "Export"). `--sample` and `--quality` apply.
@@ -98,11 +102,22 @@ fn main() -> Result<()> {
             )?;
             Ok(())
         }
-        Some(Command::Serve { listen }) => {
+        Some(Command::Serve { listen, web }) => {
             let listener =
                 TcpListener::bind(&listen).with_context(|| format!("listening on {listen}"))?;
             let addr = listener.local_addr()?;
-            let (settings, generated) = ServerSettings::for_listen(addr, token.as_deref())?;
+            let web = match &web {
+                Some(w) => {
+                    let l = TcpListener::bind(w).with_context(|| format!("listening on {w}"))?;
+                    let a = l.local_addr()?;
+                    Some((l, a))
+                }
+                None => None,
+            };
+            let addrs: Vec<_> = std::iter::once(addr)
+                .chain(web.as_ref().map(|w| w.1))
+                .collect();
+            let (settings, generated) = ServerSettings::for_listen(&addrs, token.as_deref())?;
             let session = Arc::new(faces::open_sample_session(
                 &cli.sample,
                 cli.quality,
@@ -117,6 +132,19 @@ fn main() -> Result<()> {
                     "connect with: facesim-editor --remote {addr} --token {}",
                     settings.token.reveal()
                 );
+            }
+            if let Some((web, web_addr)) = web {
+                let fragment = if generated {
+                    format!("#token={}", settings.token.reveal())
+                } else {
+                    "#token=<your token>".into()
+                };
+                eprintln!("browser editor: http://{web_addr}/{fragment}");
+                let (session, settings) = (session.clone(), settings.clone());
+                std::thread::spawn(move || {
+                    facesim::session::web::serve_web(web, session, settings)
+                        .map_err(|e| eprintln!("the browser editor stopped: {e}"))
+                });
             }
             facesim::session::server::serve(listener, session, settings)?;
             Ok(())
