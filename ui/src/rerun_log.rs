@@ -4,12 +4,18 @@
 //! `face/heatmaps/<field>` (the same mesh with that field's vertex colours), `face/crosses`
 //! (actuation crosses as line strips), `face/jaw` (the jaw's rigid transform about its
 //! pivot), and `solver/{iterations,residual,solve_ms,frame_ms}` scalars; all per-frame data on
-//! the `frame` timeline (the session's frame index).
+//! the `frame` timeline (the session's frame index). The rig's view coordinates (y up) and a
+//! default blueprint ([`layout`]) go first, so a recording opens with the face upright and
+//! large.
 
 use std::sync::Mutex;
 
 use anyhow::{Context, Result};
 use facesim::session::{FaceTopology, Frame};
+use rerun::blueprint::{
+    Blueprint, BlueprintActivation, ContainerLike, Horizontal, Spatial3DView, Tabs, TimeSeriesView,
+    Vertical,
+};
 use rerun::components::{Color, Position3D, TriangleIndices, Vector3D};
 
 /// Where to stream.
@@ -41,6 +47,35 @@ impl std::str::FromStr for RerunTarget {
     }
 }
 
+/// The default blueprint: tabs of 3D views (the face with its crosses and jaw; the heatmaps,
+/// one selectable entity each) over three quarters of the width, the solver's plots beside.
+fn layout() -> Blueprint {
+    let face = Spatial3DView::new("face")
+        .with_origin("/")
+        .with_contents(["+ /face/**", "- /face/heatmaps/**"]);
+    let heatmaps = Spatial3DView::new("heatmaps")
+        .with_origin("/")
+        .with_contents(["+ /face/heatmaps/**"]);
+    let plot = |name: &str, entities: &[&str]| -> ContainerLike {
+        TimeSeriesView::new(name)
+            .with_origin("/solver")
+            .with_contents(entities.iter().map(|e| format!("/solver/{e}")))
+            .into()
+    };
+    let plots = Vertical::new([
+        plot("iterations", &["iterations"]),
+        plot("residual", &["residual"]),
+        plot("time (ms)", &["solve_ms", "frame_ms"]),
+    ]);
+    Blueprint::new(
+        Horizontal::new([
+            Tabs::new([face.into(), heatmaps.into()]).into(),
+            plots.into(),
+        ])
+        .with_column_shares([3.0, 1.0]),
+    )
+}
+
 /// Logs frames to one recording.
 pub struct RerunLogger {
     rec: rerun::RecordingStream,
@@ -66,6 +101,10 @@ impl RerunLogger {
                 .save(path)
                 .with_context(|| format!("creating {}", path.display()))?,
         };
+        // The rig's axes (x right, y up, z toward the viewer), so the viewer's camera starts
+        // upright; and a layout with the face large and the solver's plots beside it.
+        rec.log_static("/", &rerun::ViewCoordinates::RIGHT_HAND_Y_UP())?;
+        layout().send(&rec, BlueprintActivation::default())?;
         Ok(RerunLogger {
             rec,
             static_face: Mutex::new(None),

@@ -1,6 +1,7 @@
 //! An `.rrd` written by the editor's rerun logger is read back with the rerun Python SDK
 //! (`rerun-sdk==0.36.3`, `rerun.experimental.RrdReader`) and checked: entities, frame count,
-//! vertex count, scalar values.
+//! vertex count, scalar values; and screenshotted by the headless viewer, where the face must
+//! fill the default blueprint's 3D view.
 
 use std::path::PathBuf;
 use std::time::Duration;
@@ -56,6 +57,33 @@ fn an_rrd_written_by_the_editor_reads_back_in_the_python_sdk() {
         .arg(&expected)
         .output()
         .expect("python3 (with rerun-sdk==0.36.3, see .ci/run)");
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(out.status.success() && text.contains("ok"), "{text}");
+
+    // The recording opens framed: the headless viewer's screenshot shows the face large and
+    // upright in the default blueprint's 3D view.
+    let picture = dir.join("viewer.png");
+    let out = std::process::Command::new("python3")
+        .args(["-m", "rerun"])
+        .arg(&rrd)
+        .args(["--headless", "--window-size", "1200x800", "--screenshot-to"])
+        .arg(&picture)
+        .output()
+        .expect("python3 -m rerun (rerun-sdk==0.36.3, see .ci/run)");
+    assert!(
+        out.status.success(),
+        "the headless viewer failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let out = std::process::Command::new("python3")
+        .arg(root.join("ui/tests/check_rrd_screenshot.py"))
+        .arg(&picture)
+        .output()
+        .unwrap();
     let text = format!(
         "{}{}",
         String::from_utf8_lossy(&out.stdout),
