@@ -1,7 +1,9 @@
 //! The browser editor in a real browser: the bundled sample served by `session::web` on
 //! loopback, driven in Debian's headless Chromium through puppeteer-core
 //! (`tests/browser/drive.mjs`): the page connects with the token from its URL, the jawOpen
-//! slider moved on the page changes the face the page draws, and a wrong token is refused.
+//! slider moved on the page changes the face the page draws, each heatmap colours it, and a
+//! wrong token is refused. It
+//! prints the latency of a ten-step drag through the page (`--nocapture`).
 //! Needs `chromium` (Debian) and `npm ci --prefix tests/browser`.
 
 use std::net::TcpListener;
@@ -75,6 +77,29 @@ fn the_page_edits_the_face_in_headless_chromium() {
     );
     assert_eq!(report["error"], "", "{report:#}");
     assert_eq!(report["consoleErrors"], serde_json::json!([]), "{report:#}");
+    let heatmaps = report["heatmapPixelsChanged"].as_array().unwrap();
+    assert!(
+        !heatmaps.is_empty() && heatmaps.iter().all(|c| c.as_u64().unwrap() > 500),
+        "every heatmap must colour the skin: {report:#}"
+    );
+    let mut drag: Vec<f64> = report["dragMs"]
+        .as_array()
+        .unwrap_or_else(|| panic!("{report:#}"))
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    assert_eq!(drag.len(), 10, "{report:#}");
+    drag.sort_by(f64::total_cmp);
+    // Not a speed bound (tests do not time things): the figure, for the remote guide.
+    println!(
+        "browser drag, slider to frame drawn: median {:.1} ms, max {:.1} ms",
+        0.5 * (drag[4] + drag[5]),
+        drag[9]
+    );
+    println!(
+        "the last frame's decoding and drawing: {}",
+        report["timing"]
+    );
     assert!(
         report["refused"].as_str().unwrap().contains("wrong token") && report["loginShown"] == true,
         "{report:#}"

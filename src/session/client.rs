@@ -249,7 +249,8 @@ fn pump(
             }
             let reply = conn.request(&Message::GetFrame {
                 after,
-                timeout_ms: Some(50),
+                // Requests are answered in order, so changed inputs wait for this: short.
+                timeout_ms: Some(20),
                 geometry: Some(true),
                 encoding: Some(Encoding::Binary),
                 base: assembler.base(),

@@ -1,6 +1,6 @@
 // Drives the browser editor in headless Chromium (Debian's, or $CHROMIUM) for tests/browser.rs:
 // loads the page with the token, moves the jawOpen slider through the page, and reports what
-// changed; then loads it with a wrong token and reports the refusal. Prints one JSON object.
+// changed, and times a ten-step drag; then loads it with a wrong token and reports the refusal. Prints one JSON object.
 import puppeteer from "puppeteer-core";
 
 const [url, wrongUrl, screenshot] = process.argv.slice(2);
@@ -59,6 +59,39 @@ try {
   result.error = after.error;
   result.sliders = after.sliders;
   if (screenshot) await page.screenshot({ path: screenshot });
+  // A drag through the page, back from 0.9 to 0 in ten steps, refinement off (as `facesim
+  // bench editor` measures): per step, the time from the slider's input event to the first
+  // frame of that value decoded and drawn.
+  result.dragMs = await page.evaluate(async () => {
+    const refine = document.getElementById("refine");
+    if (refine.checked) refine.click();
+    await new Promise((r) => setTimeout(r, 500));
+    const s = document.getElementById("slider-jawOpen");
+    const times = [];
+    for (let k = 1; k <= 10; k++) {
+      const w = Math.round((0.9 - 0.09 * k) * 100) / 100;
+      const start = performance.now();
+      s.value = String(w);
+      s.dispatchEvent(new Event("input"));
+      while (facesim.frame.codes.expression[0] !== w) await new Promise((r) => setTimeout(r, 1));
+      times.push(performance.now() - start);
+    }
+    return times;
+  });
+  result.timing = await page.evaluate(() => facesim.timing);
+  // Each heatmap colours the skin.
+  const plain = await pixels();
+  result.heatmapPixelsChanged = [];
+  for (const option of await page.$$eval("#heatmap option", (os) => os.map((o) => o.value))) {
+    if (option === "-1") continue;
+    await page.select("#heatmap", option);
+    const coloured = await pixels();
+    let changed = 0;
+    for (let i = 0; i < plain.length; i += 4) {
+      if ([0, 1, 2].some((k) => Math.abs(plain[i + k] - coloured[i + k]) > 24)) changed += 1;
+    }
+    result.heatmapPixelsChanged.push(changed);
+  }
 
   const wrong = await browser.newPage();
   await wrong.goto(wrongUrl);
