@@ -80,13 +80,8 @@ pub fn bench_remote(
     let served = session.clone();
     std::thread::spawn(move || serve(listener, served, settings));
     let mut conn = Connection::open(&addr)?;
+    conn.hello(token.reveal())?;
     let unexpected = |r: Reply| RemoteBenchError::Unexpected(format!("{r:?}"));
-    match conn.request(&Message::Hello {
-        token: Some(token.reveal().into()),
-    })? {
-        Reply::Hello { .. } => {}
-        r => return Err(unexpected(r)),
-    }
     let topology = match conn.request(&Message::GetTopology { face: 0 })? {
         Reply::Topology { topology, .. } => topology,
         r => return Err(unexpected(r)),

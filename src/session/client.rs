@@ -61,6 +61,18 @@ impl Connection {
         })
     }
 
+    /// The connection's first request: `hello` with the session's `token`; the faces and the
+    /// session's current inputs, or the server's refusal.
+    pub fn hello(&mut self, token: &str) -> Result<(Vec<FaceInfo>, Inputs), ClientError> {
+        match self.request(&Message::Hello {
+            token: Some(token.to_string()),
+        })? {
+            Reply::Hello { faces, inputs, .. } => Ok((faces, *inputs)),
+            Reply::Error { message } => Err(ClientError::Refused(message)),
+            other => Err(ClientError::BadReply(format!("{other:?}"))),
+        }
+    }
+
     /// Sends `message` and reads its reply (with a binary frame's payload).
     pub fn request(&mut self, message: &Message) -> Result<Reply, ClientError> {
         let mut line = serde_json::to_vec(message).expect("messages serialize");
@@ -153,13 +165,7 @@ impl RemoteSession {
     /// Connects to `addr` and authenticates with `token` (what `serve` printed).
     pub fn connect(addr: &str, token: &str) -> Result<Self, ClientError> {
         let mut conn = Connection::open(addr)?;
-        let (faces, inputs) = match conn.request(&Message::Hello {
-            token: Some(token.to_string()),
-        })? {
-            Reply::Hello { faces, inputs, .. } => (faces, *inputs),
-            Reply::Error { message } => return Err(ClientError::Refused(message)),
-            other => return Err(ClientError::BadReply(format!("{other:?}"))),
-        };
+        let (faces, inputs) = conn.hello(token)?;
         let mut topologies = Vec::new();
         for f in &faces {
             match conn.request(&Message::GetTopology { face: f.index })? {

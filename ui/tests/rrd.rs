@@ -3,7 +3,7 @@
 //! vertex count, scalar values; and screenshotted by the headless viewer, where the face must
 //! fill the default blueprint's 3D view.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use facesim::rig::ExpressionCode;
@@ -51,18 +51,7 @@ fn an_rrd_written_by_the_editor_reads_back_in_the_python_sdk() {
         .to_string(),
     )
     .unwrap();
-    let out = std::process::Command::new("python3")
-        .arg(root.join("ui/tests/check_rrd.py"))
-        .arg(&rrd)
-        .arg(&expected)
-        .output()
-        .expect("python3 (with rerun-sdk==0.36.3, see .ci/run)");
-    let text = format!(
-        "{}{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    assert!(out.status.success() && text.contains("ok"), "{text}");
+    python_check(&root.join("ui/tests/check_rrd.py"), &[&rrd, &expected]);
 
     // The recording opens framed: the headless viewer's screenshot shows the face large and
     // upright in the default blueprint's 3D view.
@@ -79,16 +68,21 @@ fn an_rrd_written_by_the_editor_reads_back_in_the_python_sdk() {
         "the headless viewer failed: {}",
         String::from_utf8_lossy(&out.stderr)
     );
+    python_check(&root.join("ui/tests/check_rrd_screenshot.py"), &[&picture]);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// Runs a Python check script on `args`; it must succeed and say "ok".
+fn python_check(script: &Path, args: &[&Path]) {
     let out = std::process::Command::new("python3")
-        .arg(root.join("ui/tests/check_rrd_screenshot.py"))
-        .arg(&picture)
+        .arg(script)
+        .args(args)
         .output()
-        .unwrap();
+        .expect("python3 (with rerun-sdk==0.36.3, see .ci/run)");
     let text = format!(
         "{}{}",
         String::from_utf8_lossy(&out.stdout),
         String::from_utf8_lossy(&out.stderr)
     );
     assert!(out.status.success() && text.contains("ok"), "{text}");
-    std::fs::remove_dir_all(&dir).unwrap();
 }
