@@ -2,7 +2,8 @@
 //! loopback, driven in Debian's headless Chromium through puppeteer-core
 //! (`tests/browser/drive.mjs`): the page connects with the token from its URL, the jawOpen
 //! slider moved on the page changes the face the page draws, each heatmap colours it, and a
-//! wrong token is refused. It
+//! wrong token is refused, and the page works inside TLS (https and wss, a self-signed
+//! certificate from `scripts/self-signed-cert.sh`). It
 //! prints the latency of a ten-step drag through the page (`--nocapture`).
 //! Needs `chromium` (Debian) and `npm ci --prefix tests/browser`.
 
@@ -13,6 +14,7 @@ use std::sync::Arc;
 
 use facesim::sample::Sample;
 use facesim::session::server::ServerSettings;
+use facesim::session::tls::ServerTls;
 use facesim::session::web::serve_web;
 use facesim::session::{Session, Token};
 use facesim::sim::Quality;
@@ -43,6 +45,20 @@ fn the_page_edits_the_face_in_headless_chromium() {
     let addr = listener.local_addr().unwrap();
     let token = Token::generate();
     let settings = ServerSettings::new(token.clone());
+    let tls_dir = root().join("target/browser-tls");
+    let script = root().join("scripts/self-signed-cert.sh");
+    let made = Command::new("sh")
+        .arg(&script)
+        .arg(&tls_dir)
+        .output()
+        .unwrap();
+    assert!(made.status.success(), "{script:?} needs openssl");
+    let tls = ServerTls::from_pem_files(&tls_dir.join("cert.pem"), &tls_dir.join("key.pem"));
+    let secure = TcpListener::bind("127.0.0.1:0").unwrap();
+    let secure_addr = secure.local_addr().unwrap();
+    let secure_settings = settings.clone().with_tls(Some(tls.unwrap()));
+    let secure_session = session.clone();
+    std::thread::spawn(move || serve_web(secure, secure_session, secure_settings));
     std::thread::spawn(move || serve_web(listener, session, settings));
 
     let picture = root().join("target/browser-editor.png");
@@ -51,6 +67,10 @@ fn the_page_edits_the_face_in_headless_chromium() {
         .arg(format!("http://{addr}/#token={}", token.reveal()))
         .arg(format!("http://{addr}/#token=not-the-token-at-all"))
         .arg(&picture)
+        .arg(format!(
+            "https://{secure_addr}/#token={}&deflate=1",
+            token.reveal()
+        ))
         .output()
         .unwrap_or_else(|e| panic!("cannot run `node`: {e}; {install}"));
     let stdout = String::from_utf8_lossy(&out.stdout);
@@ -102,6 +122,17 @@ fn the_page_edits_the_face_in_headless_chromium() {
     );
     assert!(
         report["refused"].as_str().unwrap().contains("wrong token") && report["loginShown"] == true,
+        "{report:#}"
+    );
+    // The same page inside TLS (serve --tls-cert): https, wss, a frame drawn; deflated frames
+    // as off this machine.
+    assert_eq!(report["tls"]["protocol"], "https:", "{report:#}");
+    assert_eq!(report["tls"]["deflated"], true, "{report:#}");
+    assert!(
+        report["tls"]["socket"]
+            .as_str()
+            .unwrap()
+            .starts_with("wss://"),
         "{report:#}"
     );
 }

@@ -1,6 +1,7 @@
 //! Remote editing cost (`facesim bench remote`): bytes per frame and slider-to-frame latency
-//! of a drag through the remote protocol on loopback, with JSON geometry and with binary
-//! deltas ([`crate::session::wire`]), beside the same drag on the embedded session.
+//! of a drag through the remote protocol on loopback, with JSON geometry, with binary deltas
+//! ([`crate::session::wire`]) and with deflated binary deltas (what a client off this machine
+//! asks for), beside the same drag on the embedded session.
 //!
 //! One session serves all three in turn (refinement off, so each step's frame is the one the
 //! step asked for). A remote step is `set_codes`, then `get_frame` until the frame of that
@@ -24,7 +25,7 @@ use crate::sim::Quality;
 
 #[derive(Clone, Debug, Serialize)]
 pub struct RemoteRow {
-    /// `embedded`, `remote json` or `remote binary`.
+    /// `embedded`, `remote json`, `remote binary` or `remote binary deflate`.
     pub transport: String,
     pub samples: usize,
     /// Bytes of one frame's reply (0 for the embedded session).
@@ -50,7 +51,7 @@ pub enum RemoteBenchError {
 
 const WAIT: Duration = Duration::from_secs(600);
 
-/// The three rows for a drag of `slider` (0 → 1 → 0 in `steps` moves) on `face`.
+/// The four rows for a drag of `slider` (0 → 1 → 0 in `steps` moves) on `face`.
 pub fn bench_remote(
     face: SessionFace,
     quality: Quality,
@@ -79,7 +80,7 @@ pub fn bench_remote(
     let settings = ServerSettings::new(token.clone());
     let served = session.clone();
     std::thread::spawn(move || serve(listener, served, settings));
-    let mut conn = Connection::open(&addr)?;
+    let mut conn = Connection::open(&addr, None)?;
     conn.hello(token.reveal())?;
     let unexpected = |r: Reply| RemoteBenchError::Unexpected(format!("{r:?}"));
     let topology = match conn.request(&Message::GetTopology { face: 0 })? {
@@ -89,6 +90,7 @@ pub fn bench_remote(
     for (name, encoding) in [
         ("remote json", Encoding::Json),
         ("remote binary", Encoding::Binary),
+        ("remote binary deflate", Encoding::BinaryDeflate),
     ] {
         let mut assembler = FrameAssembler::default();
         let (mut ms, mut bytes) = (Vec::new(), Vec::new());
@@ -116,8 +118,13 @@ pub fn bench_remote(
                         bytes.push(line);
                         *frame
                     }
-                    Reply::FrameData { frame, payload, .. } => {
-                        bytes.push(line + payload.len());
+                    Reply::FrameData {
+                        frame,
+                        payload,
+                        bytes: sent,
+                        ..
+                    } => {
+                        bytes.push(line + sent);
                         assembler.assemble(*frame, &payload, &topology)?
                     }
                     r => return Err(unexpected(r)),
@@ -182,17 +189,22 @@ mod tests {
     use super::*;
     use crate::session::tests::test_face;
 
-    /// The drag arrives through both encodings, and binary frames cost under a tenth of the
-    /// JSON's bytes.
+    /// The drag arrives through all encodings, binary frames cost under a tenth of the JSON's
+    /// bytes, and deflated ones less again.
     #[test]
     fn a_remote_drag_is_measured_and_binary_frames_are_small() {
         let rows = bench_remote(test_face("a"), Quality::Interactive, "jawOpen", 6).unwrap();
-        assert_eq!(rows.len(), 3);
+        assert_eq!(rows.len(), 4);
         assert!(rows.iter().all(|r| r.samples == 6 && r.median_ms > 0.0));
         let (json, binary) = (&rows[1], &rows[2]);
         assert!(json.median_bytes > 0.0);
         assert!(
             binary.median_bytes * 10.0 < json.median_bytes,
+            "{}",
+            table(&rows)
+        );
+        assert!(
+            rows[3].median_bytes < binary.median_bytes,
             "{}",
             table(&rows)
         );

@@ -14,7 +14,8 @@ use super::face::FaceTopology;
 use super::frame::{Frame, vertex_normals};
 use super::handle::{FrameObserver, SessionHandle};
 use super::protocol::{Encoding, Entries, FaceInfo, FaceRef, Message, Reply};
-use super::wire::QuantizedGeometry;
+use super::tls::{ClientTls, Duplex, TlsError};
+use super::wire::{QuantizedGeometry, inflate};
 use super::worker::{Inputs, Request, apply_requests};
 use crate::rig::style::StyleCode;
 
@@ -27,6 +28,8 @@ pub enum ClientError {
     },
     #[error("talking to the server: {0}")]
     Io(#[from] std::io::Error),
+    #[error(transparent)]
+    Tls(#[from] TlsError),
     #[error("the server sent a line that is not a reply: {0}")]
     BadReply(String),
     #[error("the server refused: {0}")]
@@ -41,12 +44,16 @@ pub const REPLY_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(20
 
 /// One request/reply round trip.
 pub struct Connection {
-    out: TcpStream,
-    input: BufReader<TcpStream>,
+    /// Replies are read through the buffer; requests are written to the stream beneath it.
+    stream: BufReader<Box<dyn Duplex>>,
+    /// The server is on this machine (deflating frames would cost more than it saves).
+    loopback: bool,
 }
 
 impl Connection {
-    pub fn open(addr: &str) -> Result<Self, ClientError> {
+    /// Connects to `addr` (`host:port`), inside TLS when `tls` is given (the server's
+    /// certificate must then be trusted by it and name `host`).
+    pub fn open(addr: &str, tls: Option<&ClientTls>) -> Result<Self, ClientError> {
         let stream = TcpStream::connect(addr).map_err(|source| ClientError::Connect {
             addr: addr.into(),
             source,
@@ -55,10 +62,25 @@ impl Connection {
         // A server that vanished without closing (half-open) must not hang the editor: no
         // reply takes longer than the longest `get_frame` wait (10 s).
         stream.set_read_timeout(Some(REPLY_TIMEOUT))?;
+        let loopback = stream.peer_addr()?.ip().is_loopback();
+        let stream: Box<dyn Duplex> = match tls {
+            Some(tls) => tls.connect(addr, stream)?,
+            None => Box::new(stream),
+        };
         Ok(Connection {
-            out: stream.try_clone()?,
-            input: BufReader::new(stream),
+            stream: BufReader::new(stream),
+            loopback,
         })
+    }
+
+    /// The binary encoding worth asking for: deflated unless the server is on loopback
+    /// ([`super::wire`]).
+    pub fn binary_encoding(&self) -> Encoding {
+        if self.loopback {
+            Encoding::Binary
+        } else {
+            Encoding::BinaryDeflate
+        }
     }
 
     /// The connection's first request: `hello` with the session's `token`; the faces and the
@@ -73,25 +95,38 @@ impl Connection {
         }
     }
 
-    /// Sends `message` and reads its reply (with a binary frame's payload).
+    /// Sends `message` and reads its reply (with a binary frame's payload, inflated when it
+    /// came deflated).
     pub fn request(&mut self, message: &Message) -> Result<Reply, ClientError> {
         let mut line = serde_json::to_vec(message).expect("messages serialize");
         line.push(b'\n');
-        self.out.write_all(&line)?;
+        let out = self.stream.get_mut();
+        out.write_all(&line)?;
+        out.flush()?;
         let mut text = String::new();
-        if self.input.read_line(&mut text)? == 0 {
+        if self.stream.read_line(&mut text)? == 0 {
             return Err(ClientError::Io(std::io::ErrorKind::UnexpectedEof.into()));
         }
         let mut reply: Reply = serde_json::from_str(&text)
             .map_err(|e| ClientError::BadReply(format!("{e}: {text}")))?;
-        if let Reply::FrameData { bytes, payload, .. } = &mut reply {
+        if let Reply::FrameData {
+            bytes,
+            payload,
+            deflated,
+            ..
+        } = &mut reply
+        {
             if *bytes > MAX_PAYLOAD {
                 return Err(ClientError::BadReply(format!(
                     "a {bytes}-byte frame payload (at most {MAX_PAYLOAD})"
                 )));
             }
             payload.resize(*bytes, 0);
-            self.input.read_exact(payload)?;
+            self.stream.read_exact(payload)?;
+            if *deflated {
+                *payload = inflate(payload, MAX_PAYLOAD)
+                    .map_err(|e| ClientError::BadReply(e.to_string()))?;
+            }
         }
         Ok(reply)
     }
@@ -162,9 +197,10 @@ pub struct RemoteSession {
 }
 
 impl RemoteSession {
-    /// Connects to `addr` and authenticates with `token` (what `serve` printed).
-    pub fn connect(addr: &str, token: &str) -> Result<Self, ClientError> {
-        let mut conn = Connection::open(addr)?;
+    /// Connects to `addr` (inside TLS with `tls`) and authenticates with `token` (what
+    /// `serve` printed).
+    pub fn connect(addr: &str, token: &str, tls: Option<&ClientTls>) -> Result<Self, ClientError> {
+        let mut conn = Connection::open(addr, tls)?;
         let (faces, inputs) = conn.hello(token)?;
         let mut topologies = Vec::new();
         for f in &faces {
@@ -258,7 +294,7 @@ fn pump(
                 // Requests are answered in order, so changed inputs wait for this: short.
                 timeout_ms: Some(20),
                 geometry: Some(true),
-                encoding: Some(Encoding::Binary),
+                encoding: Some(conn.binary_encoding()),
                 base: assembler.base(),
             })?;
             if let Reply::FrameData { frame, payload, .. } = reply {

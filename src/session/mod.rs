@@ -14,6 +14,7 @@ pub mod handle;
 pub mod heatmap;
 pub mod protocol;
 pub mod server;
+pub mod tls;
 pub mod token;
 pub mod track;
 pub mod web;

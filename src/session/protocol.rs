@@ -12,7 +12,7 @@
 //! | `set_face` | `face`: index or name (the style resets to the face's default) | `ok` |
 //! | `set_quality` | `quality`: `interactive`/`preview`/`final`; optional `refine`, `contact`: bool | `ok` |
 //! | `set_display` | optional `crosses`, `heatmaps`: bool (overlays the frames carry) | `ok` |
-//! | `get_frame` | optional `after` (frame index: wait for a newer one), `timeout_ms` (≤ 10000, default 2000), `geometry` (default true), `encoding` (`json`/`binary`), `base` (binary: the frame the client holds) | `frame`, or `frame_data` and its binary payload (or `error` on timeout) |
+//! | `get_frame` | optional `after` (frame index: wait for a newer one), `timeout_ms` (≤ 10000, default 2000), `geometry` (default true), `encoding` (`json`/`binary`/`binary_deflate`), `base` (binary: the frame the client holds) | `frame`, or `frame_data` and its binary payload (deflated on request) (or `error` on timeout) |
 //! | `get_topology` | `face`: index | `topology`: triangles, rigid flags, mesh edges, rest positions |
 //!
 //! Expression weights must lie in [0, 1] and style values in [-1, 1] (the sliders' ranges);
@@ -112,6 +112,8 @@ pub enum Message {
 pub enum Encoding {
     Json,
     Binary,
+    /// Binary, its payload deflated ([`super::wire::deflate`]): for slow links.
+    BinaryDeflate,
 }
 
 /// What `hello` says about a face.
@@ -147,7 +149,11 @@ pub enum Reply {
     /// the client) follows the reply line as `bytes` bytes of [`super::wire`] payload.
     FrameData {
         frame: Box<Frame>,
+        /// The payload's length as sent.
         bytes: usize,
+        /// The payload as sent is deflated (asked for with `binary_deflate`).
+        #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+        deflated: bool,
         #[serde(skip)]
         payload: Vec<u8>,
     },
@@ -185,7 +191,7 @@ pub fn handle_line(session: &Session, peer: &mut Peer, line: &str) -> Reply {
 
 /// `frame` with its geometry moved into a binary payload, a delta on what `peer` holds when
 /// the client says it holds it.
-fn binary_frame(peer: &mut Peer, mut frame: Frame, base: Option<u64>) -> Reply {
+fn binary_frame(peer: &mut Peer, mut frame: Frame, base: Option<u64>, deflated: bool) -> Reply {
     let fields: Vec<&[f32]> = frame.heatmaps.iter().map(|h| h.values.as_slice()).collect();
     let geometry = match QuantizedGeometry::new(
         frame.index,
@@ -197,7 +203,10 @@ fn binary_frame(peer: &mut Peer, mut frame: Frame, base: Option<u64>) -> Reply {
         Err(e) => return Reply::error(format!("frame {}: {e}", frame.index)),
     };
     let held = peer.sent.as_ref().filter(|s| Some(s.index) == base);
-    let payload = geometry.encode(held);
+    let mut payload = geometry.encode(held);
+    if deflated {
+        payload = super::wire::deflate(&payload);
+    }
     peer.sent = Some(geometry);
     frame.positions.clear();
     frame.normals.clear();
@@ -208,6 +217,7 @@ fn binary_frame(peer: &mut Peer, mut frame: Frame, base: Option<u64>) -> Reply {
     Reply::FrameData {
         frame: Box::new(frame),
         bytes: payload.len(),
+        deflated,
         payload,
     }
 }
@@ -355,8 +365,12 @@ pub fn handle(session: &Session, peer: &mut Peer, message: Message) -> Reply {
                 ));
             }
             match session.wait_newer(after, Duration::from_millis(wait)) {
-                Some(f) if geometry != Some(false) && encoding == Some(Encoding::Binary) => {
-                    binary_frame(peer, (*f).clone(), base)
+                Some(f)
+                    if geometry != Some(false)
+                        && matches!(encoding, Some(Encoding::Binary | Encoding::BinaryDeflate)) =>
+                {
+                    let deflated = encoding == Some(Encoding::BinaryDeflate);
+                    binary_frame(peer, (*f).clone(), base, deflated)
                 }
                 Some(f) => {
                     let mut frame = (*f).clone();

@@ -12,6 +12,8 @@
 //! - **Idle connections cannot lock anyone out.** At most [`MAX_PENDING`] connections wait to
 //!   authenticate; a new one pushes out the oldest, so a client that sends its hello at once
 //!   gets in past any number of silent ones. Authenticated clients are at most [`MAX_CLIENTS`].
+//! - **TLS when given a certificate** ([`ServerSettings::tls`], [`super::tls`]): the same
+//!   protocol inside TLS, for use beyond a trusted network.
 //! - **Bounded memory per client.** A client's requests are read one line (≤ [`MAX_LINE`]) at
 //!   a time and answered before the next is read (a client that does not read its replies
 //!   stalls only itself until the write timeout closes it), and setting requests merge into
@@ -25,6 +27,7 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use super::protocol::{MAX_LINE, Message, Peer, Reply, handle, handle_line};
+use super::tls::{Duplex, ServerTls};
 use super::token::{Token, TokenError};
 use super::worker::Session;
 
@@ -43,14 +46,16 @@ pub struct ServerSettings {
     pub idle_timeout: Duration,
     /// A reply the client has not taken within this closes it.
     pub write_timeout: Duration,
+    /// Serve inside TLS with this identity; plain TCP when `None`.
+    pub tls: Option<ServerTls>,
 }
 
 #[derive(Debug, thiserror::Error, PartialEq, Eq)]
 pub enum AccessError {
     #[error(
         "{0} is not a loopback address: serving beyond this machine needs a token you choose \
-         and share (--token or $FACESIM_TOKEN); the protocol is not encrypted, so beyond a \
-         trusted network keep it on loopback and reach it through an SSH tunnel"
+         and share (--token or $FACESIM_TOKEN), and beyond a trusted network a TLS certificate \
+         (--tls-cert and --tls-key) or an SSH tunnel to loopback"
     )]
     PublicWithoutToken(SocketAddr),
     #[error(transparent)]
@@ -65,7 +70,13 @@ impl ServerSettings {
             handshake_timeout: Duration::from_secs(5),
             idle_timeout: Duration::from_secs(300),
             write_timeout: Duration::from_secs(10),
+            tls: None,
         }
+    }
+
+    /// The same settings, served inside TLS with `tls`.
+    pub fn with_tls(self, tls: Option<ServerTls>) -> Self {
+        ServerSettings { tls, ..self }
     }
 
     /// Settings for listening on `addrs`: the given token, or a generated one when all are
@@ -130,7 +141,10 @@ pub fn serve(
     settings: ServerSettings,
 ) -> std::io::Result<()> {
     accept_each(listener, session, settings, |stream, client| {
-        let mut channel = LineChannel::new(stream)?;
+        let mut channel = LineChannel {
+            stream: BufReader::new(client.secure(stream)?),
+            buffer: Vec::new(),
+        };
         client.serve(&mut channel)
     })
 }
@@ -188,19 +202,9 @@ pub(crate) trait Channel {
 /// The TCP line protocol: a JSON line per request and per reply, a binary frame's payload
 /// right after its reply line.
 struct LineChannel {
-    reader: BufReader<TcpStream>,
-    out: TcpStream,
+    /// Requests are read through the buffer; replies are written to the stream beneath it.
+    stream: BufReader<Box<dyn Duplex>>,
     buffer: Vec<u8>,
-}
-
-impl LineChannel {
-    fn new(stream: TcpStream) -> std::io::Result<Self> {
-        Ok(LineChannel {
-            out: stream.try_clone()?,
-            reader: BufReader::new(stream),
-            buffer: Vec::new(),
-        })
-    }
 }
 
 impl Channel for LineChannel {
@@ -208,7 +212,7 @@ impl Channel for LineChannel {
         loop {
             self.buffer.clear();
             let n = self
-                .reader
+                .stream
                 .by_ref()
                 .take(MAX_LINE as u64 + 1)
                 .read_until(b'\n', &mut self.buffer)?;
@@ -232,7 +236,9 @@ impl Channel for LineChannel {
         if let Reply::FrameData { payload, .. } = reply {
             line.extend_from_slice(payload);
         }
-        self.out.write_all(&line)
+        let out = self.stream.get_mut();
+        out.write_all(&line)?;
+        out.flush()
     }
 }
 
@@ -259,6 +265,19 @@ impl Client {
             .set_read_timeout(Some(self.settings.handshake_timeout))?;
         self.control
             .set_write_timeout(Some(self.settings.write_timeout))
+    }
+
+    /// The accepted socket as this server speaks on it: inside TLS when it has a certificate.
+    pub(crate) fn secure(&self, stream: TcpStream) -> std::io::Result<Box<dyn Duplex>> {
+        match &self.settings.tls {
+            Some(tls) => tls.accept(stream),
+            None => Ok(Box::new(stream)),
+        }
+    }
+
+    /// Whether the server speaks TLS.
+    pub(crate) fn is_tls(&self) -> bool {
+        self.settings.tls.is_some()
     }
 
     /// Authenticates the client on `channel`, then answers its requests until it

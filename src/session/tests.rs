@@ -376,7 +376,7 @@ mod protocol_tests {
     #[test]
     fn good_messages_set_inputs_and_return_frames() {
         let (s, addr) = server();
-        let mut c = Connection::open(&addr).unwrap();
+        let mut c = Connection::open(&addr, None).unwrap();
         let Reply::Hello {
             faces,
             expression_names,
@@ -538,7 +538,7 @@ mod protocol_tests {
         let n = frames.load(std::sync::atomic::Ordering::SeqCst);
         assert!(n < 150, "600 slider messages must coalesce, got {n} frames");
         // The server still answers new clients.
-        let mut c = Connection::open(&addr).unwrap();
+        let mut c = Connection::open(&addr, None).unwrap();
         assert!(matches!(c.request(&hello()).unwrap(), Reply::Hello { .. }));
     }
 
@@ -550,7 +550,7 @@ mod protocol_tests {
         use crate::session::protocol::Encoding;
         use crate::session::wire::QUANTUM;
         let (s, addr) = server();
-        let mut c = Connection::open(&addr).unwrap();
+        let mut c = Connection::open(&addr, None).unwrap();
         c.request(&hello()).unwrap();
         let Reply::Topology { topology, .. } =
             c.request(&Message::GetTopology { face: 0 }).unwrap()
@@ -568,7 +568,13 @@ mod protocol_tests {
             })
             .unwrap()
         };
-        for (step, jaw) in [0.3, 0.35].into_iter().enumerate() {
+        // Deltas carry on across the plain and the deflated binary encodings.
+        let steps = [
+            (0.3, Encoding::Binary),
+            (0.35, Encoding::BinaryDeflate),
+            (0.4, Encoding::Binary),
+        ];
+        for (step, (jaw, encoding)) in steps.into_iter().enumerate() {
             let g = s.submit(expression("jawOpen", jaw)).unwrap();
             let f = s.wait_generation(g, WAIT).unwrap();
             let Reply::Frame { frame: json } = fetch(&mut c, f.index, Encoding::Json, None) else {
@@ -576,11 +582,17 @@ mod protocol_tests {
             };
             let base = assembler.base();
             assert_eq!(base.is_some(), step > 0);
-            let Reply::FrameData { frame, payload, .. } =
-                fetch(&mut c, f.index, Encoding::Binary, base)
+            let Reply::FrameData {
+                frame,
+                payload,
+                deflated,
+                bytes,
+            } = fetch(&mut c, f.index, encoding, base)
             else {
                 panic!("binary frame")
             };
+            assert_eq!(deflated, encoding == Encoding::BinaryDeflate);
+            assert_eq!(deflated, bytes < payload.len());
             let binary = assembler.assemble(*frame, &payload, &topology).unwrap();
             assert_eq!(binary.index, json.index);
             assert_eq!(binary.stats, json.stats);
@@ -618,6 +630,49 @@ mod protocol_tests {
                 }
             }
         }
+    }
+
+    /// Inside TLS (`serve --tls-cert`): the protocol and binary frames work for a client
+    /// that trusts the certificate, the token is still required, and a plain client gets no
+    /// reply it can read.
+    #[test]
+    fn tls_carries_the_protocol_and_keeps_the_token() {
+        use crate::session::client::ClientError;
+        use crate::session::protocol::Encoding;
+        use crate::session::tls::{ClientTls, ServerTls, test_identity};
+        let dir = std::env::temp_dir().join(format!("facesim-tls-proto-{}", std::process::id()));
+        let (cert, key) = test_identity(&dir);
+        let tls = ServerTls::from_pem_files(&cert, &key).unwrap();
+        let (s, addr) = server_with(settings().with_tls(Some(tls)));
+        let trust = ClientTls::trusting(&cert).unwrap();
+        let mut c = Connection::open(&addr, Some(&trust)).unwrap();
+        let (faces, _) = c.hello(TOKEN).unwrap();
+        assert_eq!(faces.len(), 2);
+        let g = s.submit(expression("jawOpen", 0.4)).unwrap();
+        let f = s.wait_generation(g, WAIT).unwrap();
+        let reply = c
+            .request(&Message::GetFrame {
+                after: Some(f.index - 1),
+                timeout_ms: Some(5000),
+                geometry: None,
+                encoding: Some(Encoding::Binary),
+                base: None,
+            })
+            .unwrap();
+        let Reply::FrameData { bytes, payload, .. } = reply else {
+            panic!("{reply:?}")
+        };
+        assert!(bytes > 1000 && payload.len() == bytes);
+
+        let mut guess = Connection::open(&addr, Some(&trust)).unwrap();
+        let refused = guess.hello("guess-guess-guess-guess");
+        assert!(
+            matches!(&refused, Err(ClientError::Refused(m)) if m.contains("wrong token")),
+            "{refused:?}"
+        );
+        let mut plain = Connection::open(&addr, None).unwrap();
+        assert!(plain.hello(TOKEN).is_err());
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]

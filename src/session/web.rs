@@ -9,7 +9,7 @@
 //! - `GET /ws` upgrades to a WebSocket. Each text message is one request or reply of the
 //!   protocol; a `frame_data` reply is followed by one binary message, its payload.
 //! - Drive-by protection: the upgrade needs an `Origin` that is this page's own
-//!   (`http://` + the `Host` asked for), and on a loopback listener a `Host` that names
+//!   (`http://`, or `https://` inside TLS, + the `Host` asked for), and on a loopback listener a `Host` that names
 //!   loopback (`127.0.0.1`, `localhost`, `[::1]` at this port), so a page of another site, or
 //!   one reached through a rebound DNS name, cannot open the socket even before the token.
 //! - Messages are at most [`MAX_LINE`] bytes, and the timeouts, token and client limits are
@@ -25,6 +25,7 @@ use tungstenite::{Message as WsMessage, WebSocket};
 
 use super::protocol::{MAX_LINE, Reply};
 use super::server::{Channel, Client, Incoming, ServerSettings, accept_each};
+use super::tls::Duplex;
 use super::worker::Session;
 
 /// The page, served as is.
@@ -45,31 +46,63 @@ pub fn serve_web(
     })
 }
 
-/// The request line's path of the head waiting on `stream`, read without consuming it.
-fn peek_path(stream: &TcpStream) -> std::io::Result<Option<(String, usize)>> {
-    let mut head = vec![0u8; MAX_HEAD];
-    loop {
-        let n = stream.peek(&mut head)?;
-        if n == 0 {
-            return Ok(None);
+/// An HTTP request head read from a stream (its bytes kept, to hand the WebSocket upgrade to
+/// tungstenite as if unread).
+struct Head {
+    bytes: Vec<u8>,
+    /// The request line's path for a GET; `None` for anything else.
+    path: Option<String>,
+}
+
+/// Reads up to the head's blank line (at most [`MAX_HEAD`] bytes; the read timeout bounds
+/// the wait).
+fn read_head(stream: &mut dyn Duplex) -> std::io::Result<Head> {
+    let mut bytes = Vec::new();
+    let mut chunk = [0u8; 1024];
+    let end = loop {
+        if let Some(end) = bytes.windows(4).position(|w| w == b"\r\n\r\n") {
+            break end;
         }
-        if let Some(end) = head[..n].windows(4).position(|w| w == b"\r\n\r\n") {
-            let text = String::from_utf8_lossy(&head[..end]);
-            let mut words = text.lines().next().unwrap_or("").split_whitespace();
-            return Ok(match (words.next(), words.next()) {
-                (Some("GET"), Some(path)) => Some((path.to_string(), end + 4)),
-                _ => None,
-            });
+        let n = stream.read(&mut chunk)?;
+        if n == 0 || bytes.len() >= MAX_HEAD {
+            return Ok(Head { bytes, path: None });
         }
-        if n == MAX_HEAD {
-            return Ok(None);
+        bytes.extend_from_slice(&chunk[..n]);
+    };
+    let text = String::from_utf8_lossy(&bytes[..end]);
+    let mut words = text.lines().next().unwrap_or("").split_whitespace();
+    let path = match (words.next(), words.next()) {
+        (Some("GET"), Some(path)) => Some(path.split(['?', '#']).next().unwrap_or("").to_string()),
+        _ => None,
+    };
+    Ok(Head { bytes, path })
+}
+
+/// A stream whose first bytes read are `head` (already read from `stream`).
+struct Replay {
+    head: std::io::Cursor<Vec<u8>>,
+    stream: Box<dyn Duplex>,
+}
+
+impl Read for Replay {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        match self.head.read(buf)? {
+            0 => self.stream.read(buf),
+            n => Ok(n),
         }
-        // Not all of the head has arrived: wait for more (the read timeout bounds this).
-        std::thread::sleep(std::time::Duration::from_millis(5));
     }
 }
 
-fn respond(stream: &mut TcpStream, status: &str, kind: &str, body: &[u8]) -> std::io::Result<()> {
+impl Write for Replay {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        self.stream.write(buf)
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.stream.flush()
+    }
+}
+
+fn respond(stream: &mut dyn Duplex, status: &str, kind: &str, body: &[u8]) -> std::io::Result<()> {
     let head = format!(
         "HTTP/1.1 {status}\r\nContent-Type: {kind}\r\nContent-Length: {}\r\n\
          Cache-Control: no-store\r\nX-Content-Type-Options: nosniff\r\n\
@@ -78,34 +111,47 @@ fn respond(stream: &mut TcpStream, status: &str, kind: &str, body: &[u8]) -> std
         body.len()
     );
     stream.write_all(head.as_bytes())?;
-    stream.write_all(body)
+    stream.write_all(body)?;
+    stream.flush()
 }
 
-fn serve_http(mut stream: TcpStream, local: SocketAddr, client: &Client) -> std::io::Result<()> {
-    let Some((path, head_len)) = peek_path(&stream)? else {
-        let mut sink = vec![0u8; MAX_HEAD];
-        let _ = stream.read(&mut sink);
-        return respond(&mut stream, "400 Bad Request", "text/plain", b"GET only\n");
+fn serve_http(stream: TcpStream, local: SocketAddr, client: &Client) -> std::io::Result<()> {
+    let mut stream = client.secure(stream)?;
+    let head = read_head(&mut *stream)?;
+    let origin = Origin {
+        local,
+        scheme: if client.is_tls() { "https" } else { "http" },
     };
-    let path = path.split(['?', '#']).next().unwrap_or("").to_string();
-    if path == "/ws" {
-        return serve_socket(stream, local, client);
-    }
-    let mut head = vec![0u8; head_len];
-    stream.read_exact(&mut head)?;
-    match path.as_str() {
-        "/" | "/index.html" => respond(
-            &mut stream,
+    match head.path.as_deref() {
+        Some("/ws") => {
+            let stream = Replay {
+                head: std::io::Cursor::new(head.bytes),
+                stream,
+            };
+            serve_socket(stream, origin, client)
+        }
+        Some("/" | "/index.html") => respond(
+            &mut *stream,
             "200 OK",
             "text/html; charset=utf-8",
             PAGE.as_bytes(),
         ),
-        _ => respond(&mut stream, "404 Not Found", "text/plain", b"not found\n"),
+        Some(_) => respond(&mut *stream, "404 Not Found", "text/plain", b"not found\n"),
+        None => respond(&mut *stream, "400 Bad Request", "text/plain", b"GET only\n"),
     }
 }
 
+/// Where this server's page comes from: the listener's address and the page's scheme.
+#[derive(Clone, Copy)]
+pub struct Origin {
+    pub local: SocketAddr,
+    /// `http`, or `https` when served inside TLS.
+    pub scheme: &'static str,
+}
+
 /// Whether an upgrade request comes from this server's own page (module doc).
-pub fn same_origin(request: &Request, local: SocketAddr) -> Result<(), String> {
+pub fn same_origin(request: &Request, origin: Origin) -> Result<(), String> {
+    let local = origin.local;
     let header = |name: &str| {
         request
             .headers()
@@ -126,20 +172,20 @@ pub fn same_origin(request: &Request, local: SocketAddr) -> Result<(), String> {
         }
     }
     match header("origin") {
-        Some(origin) if origin.eq_ignore_ascii_case(&format!("http://{host}")) => Ok(()),
-        Some(origin) => Err(format!("Origin {origin} is not this server's page")),
+        Some(page) if page.eq_ignore_ascii_case(&format!("{}://{host}", origin.scheme)) => Ok(()),
+        Some(page) => Err(format!("Origin {page} is not this server's page")),
         None => Err("no Origin header".into()),
     }
 }
 
-fn serve_socket(stream: TcpStream, local: SocketAddr, client: &Client) -> std::io::Result<()> {
+fn serve_socket(stream: Replay, origin: Origin, client: &Client) -> std::io::Result<()> {
     let config = WebSocketConfig::default()
         .max_message_size(Some(MAX_LINE))
         .max_frame_size(Some(MAX_LINE));
     // The callback's signature is tungstenite's (`Callback`), its error type included.
     #[allow(clippy::result_large_err)]
     let check = |request: &Request, response: Response| -> Result<Response, ErrorResponse> {
-        same_origin(request, local)
+        same_origin(request, origin)
             .map(|()| response)
             .map_err(|why| {
                 let mut refusal = ErrorResponse::new(Some(why));
@@ -154,7 +200,7 @@ fn serve_socket(stream: TcpStream, local: SocketAddr, client: &Client) -> std::i
 
 /// The protocol over WebSocket messages (module doc).
 struct SocketChannel {
-    ws: WebSocket<TcpStream>,
+    ws: WebSocket<Replay>,
 }
 
 impl Channel for SocketChannel {
@@ -296,6 +342,65 @@ mod tests {
         // The loopback names all work.
         let local = format!("localhost:{}", addr.port());
         assert!(socket(addr, &local, Some(&format!("http://{local}"))).is_ok());
+    }
+
+    /// Inside TLS the page comes over https and the socket over wss, and its Origin must be
+    /// the https page's.
+    #[test]
+    fn the_page_and_socket_work_inside_tls() {
+        use crate::session::tls::{ClientTls, ServerTls, test_identity};
+        let dir = std::env::temp_dir().join(format!("facesim-tls-web-{}", std::process::id()));
+        let (cert, key) = test_identity(&dir);
+        let session = Arc::new(Session::new(vec![test_face("a")], Quality::Interactive).unwrap());
+        let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+        let addr = listener.local_addr().unwrap();
+        let tls = ServerTls::from_pem_files(&cert, &key).unwrap();
+        let settings = ServerSettings::new(Token::new(TOKEN).unwrap()).with_tls(Some(tls));
+        std::thread::spawn(move || serve_web(listener, session, settings));
+        let trust = ClientTls::trusting(&cert).unwrap();
+        let host = addr.to_string();
+        let open = || {
+            trust
+                .connect(&host, TcpStream::connect(addr).unwrap())
+                .unwrap()
+        };
+
+        let mut page = open();
+        write!(page, "GET / HTTP/1.1\r\nHost: {host}\r\n\r\n").unwrap();
+        page.flush().unwrap();
+        let mut reply = Vec::new();
+        let _ = page.read_to_end(&mut reply); // the server closes without close_notify
+        let reply = String::from_utf8_lossy(&reply);
+        assert!(
+            reply.starts_with("HTTP/1.1 200 OK") && reply.contains("wss"),
+            "{reply}"
+        );
+
+        let socket = |origin: &str| {
+            let mut request = format!("wss://{host}/ws").into_client_request().unwrap();
+            request
+                .headers_mut()
+                .insert("origin", origin.parse().unwrap());
+            // The refusal's HTTP status, if any.
+            tungstenite::client(request, open())
+                .map(|(ws, _)| ws)
+                .map_err(|e| match e {
+                    tungstenite::HandshakeError::Failure(tungstenite::Error::Http(r)) => {
+                        Some(r.status())
+                    }
+                    _ => None,
+                })
+        };
+        let mut ws = socket(&format!("https://{host}")).unwrap();
+        ws.send(WsMessage::text(format!(
+            r#"{{"op":"hello","token":"{TOKEN}"}}"#
+        )))
+        .unwrap();
+        let hello = ws.read().unwrap();
+        assert!(hello.to_text().unwrap().contains(r#""reply":"hello""#));
+        let refusal = socket(&format!("http://{host}")).map(|_| "a socket");
+        assert_eq!(refusal, Err(Some(tungstenite::http::StatusCode::FORBIDDEN)));
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]

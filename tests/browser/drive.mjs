@@ -1,13 +1,17 @@
 // Drives the browser editor in headless Chromium (Debian's, or $CHROMIUM) for tests/browser.rs:
 // loads the page with the token, moves the jawOpen slider through the page, and reports what
-// changed, and times a ten-step drag; then loads it with a wrong token and reports the refusal. Prints one JSON object.
+// changed, and times a ten-step drag; then loads it with a wrong token and reports the refusal;
+// then, given a fourth URL (https, a server with a self-signed certificate), loads the page
+// there and reports the first frame drawn over wss. Prints one JSON object.
 import puppeteer from "puppeteer-core";
 
-const [url, wrongUrl, screenshot] = process.argv.slice(2);
+const [url, wrongUrl, screenshot, tlsUrl] = process.argv.slice(2);
 const browser = await puppeteer.launch({
   executablePath: process.env.CHROMIUM || "/usr/bin/chromium",
   headless: true,
-  args: ["--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist"],
+  args: ["--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist",
+    // The TLS run's certificate is self-signed for the test.
+    "--ignore-certificate-errors"],
 });
 const result = { consoleErrors: [] };
 const timeout = 120_000;
@@ -98,6 +102,17 @@ try {
   await wrong.waitForFunction(() => window.facesim.refused, { timeout });
   result.refused = await wrong.evaluate(() => window.facesim.refused);
   result.loginShown = await wrong.evaluate(() => !document.getElementById("login").hidden);
+
+  if (tlsUrl) {
+    const secure = await browser.newPage();
+    secure.on("pageerror", (e) => result.consoleErrors.push(String(e)));
+    await secure.goto(tlsUrl);
+    await secure.waitForFunction(() => window.facesim.frames > 0 && window.facesim.positions, { timeout });
+    result.tls = await secure.evaluate(() => ({
+      protocol: location.protocol, socket: facesim.ws.url, frames: facesim.frames,
+      deflated: facesim.deflated,
+    }));
+  }
 } catch (e) {
   result.failure = String(e);
 } finally {

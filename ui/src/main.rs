@@ -10,6 +10,7 @@ use clap::{Parser, Subcommand};
 use facesim::session::SessionHandle;
 use facesim::session::client::RemoteSession;
 use facesim::session::server::ServerSettings;
+use facesim::session::tls::{ClientTls, ServerTls};
 use facesim::sim::Quality;
 
 use facesim_ui::rerun_log::{RerunLogger, RerunTarget};
@@ -29,6 +30,10 @@ struct Cli {
     /// Talk to a `facesim-editor serve` session at this address instead of simulating here.
     #[arg(long)]
     remote: Option<String>,
+    /// With `--remote`: speak TLS and trust this PEM certificate (the server's own, or the CA
+    /// that signed it); the certificate must name the host of `--remote`.
+    #[arg(long, requires = "remote")]
+    tls_ca: Option<PathBuf>,
     /// The remote session's token (`serve` prints it), or set $FACESIM_TOKEN. With `serve`:
     /// the token clients must give (default: a generated one, on loopback only).
     #[arg(long, global = true)]
@@ -55,6 +60,13 @@ enum Command {
         /// 127.0.0.1:8080; open the URL it prints.
         #[arg(long)]
         web: Option<String>,
+        /// Serve both inside TLS with this PEM certificate (chain), for use beyond a trusted
+        /// network (README, "Remote mode"); needs `--tls-key`.
+        #[arg(long, requires = "tls_key")]
+        tls_cert: Option<PathBuf>,
+        /// The certificate's PEM private key.
+        #[arg(long, requires = "tls_cert")]
+        tls_key: Option<PathBuf>,
     },
     /// Simulate an animation track and write it out: the core formats (usd, pc2, obj, gltf)
     /// plus rrd, a rerun recording (README, "Export"). `--sample` and `--quality` apply.
@@ -102,7 +114,12 @@ fn main() -> Result<()> {
             )?;
             Ok(())
         }
-        Some(Command::Serve { listen, web }) => {
+        Some(Command::Serve {
+            listen,
+            web,
+            tls_cert,
+            tls_key,
+        }) => {
             let listener =
                 TcpListener::bind(&listen).with_context(|| format!("listening on {listen}"))?;
             let addr = listener.local_addr()?;
@@ -118,6 +135,12 @@ fn main() -> Result<()> {
                 .chain(web.as_ref().map(|w| w.1))
                 .collect();
             let (settings, generated) = ServerSettings::for_listen(&addrs, token.as_deref())?;
+            let tls = match (&tls_cert, &tls_key) {
+                (Some(cert), Some(key)) => Some(ServerTls::from_pem_files(cert, key)?),
+                _ => None,
+            };
+            let secure = tls.is_some();
+            let settings = settings.with_tls(tls);
             let session = Arc::new(faces::open_sample_session(
                 &cli.sample,
                 cli.quality,
@@ -126,10 +149,15 @@ fn main() -> Result<()> {
             if let Some(t) = &rerun {
                 attach_rerun(session.as_ref(), t)?;
             }
-            eprintln!("facesim session listening on {addr}");
+            let tls_note = if secure { " (TLS)" } else { "" };
+            eprintln!("facesim session listening on {addr}{tls_note}");
             if generated {
+                let ca = match &tls_cert {
+                    Some(cert) => format!(" --tls-ca {}", cert.display()),
+                    None => String::new(),
+                };
                 eprintln!(
-                    "connect with: facesim-editor --remote {addr} --token {}",
+                    "connect with: facesim-editor --remote {addr} --token {}{ca}",
                     settings.token.reveal()
                 );
             }
@@ -139,7 +167,8 @@ fn main() -> Result<()> {
                 } else {
                     "#token=<your token>".into()
                 };
-                eprintln!("browser editor: http://{web_addr}/{fragment}");
+                let scheme = if secure { "https" } else { "http" };
+                eprintln!("browser editor: {scheme}://{web_addr}/{fragment}");
                 let (session, settings) = (session.clone(), settings.clone());
                 std::thread::spawn(move || {
                     facesim::session::web::serve_web(web, session, settings)
@@ -154,7 +183,11 @@ fn main() -> Result<()> {
                 Some(addr) => {
                     let token = token
                         .context("--remote needs the session's token: --token or $FACESIM_TOKEN")?;
-                    Arc::new(RemoteSession::connect(addr, &token)?)
+                    let tls = match &cli.tls_ca {
+                        Some(ca) => Some(ClientTls::trusting(ca)?),
+                        None => None,
+                    };
+                    Arc::new(RemoteSession::connect(addr, &token, tls.as_ref())?)
                 }
                 None => Arc::new(faces::open_sample_session(
                     &cli.sample,

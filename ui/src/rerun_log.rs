@@ -5,18 +5,20 @@
 //! (actuation crosses as line strips), `face/jaw` (the jaw's rigid transform about its
 //! pivot), and `solver/{iterations,residual,solve_ms,frame_ms}` scalars; all per-frame data on
 //! the `frame` timeline (the session's frame index). The rig's view coordinates (y up) and a
-//! default blueprint ([`layout`]) go first, so a recording opens with the face upright and
-//! large.
+//! default blueprint ([`layout`], with the first face) go first, so a recording opens with the
+//! face upright, large and seen from the front.
 
 use std::sync::Mutex;
 
 use anyhow::{Context, Result};
 use facesim::session::{FaceTopology, Frame};
+use rerun::EntityPath;
 use rerun::blueprint::{
     Blueprint, BlueprintActivation, ContainerLike, Horizontal, Spatial3DView, Tabs, TimeSeriesView,
     Vertical,
 };
-use rerun::components::{Color, Position3D, TriangleIndices, Vector3D};
+use rerun::components::{Color, Plane3D, Position3D, TriangleIndices, Vector3D};
+use rerun::external::re_sdk_types::blueprint::archetypes::{EyeControls3D, LineGrid3D};
 
 /// Where to stream.
 #[derive(Clone, Debug, PartialEq)]
@@ -48,14 +50,22 @@ impl std::str::FromStr for RerunTarget {
 }
 
 /// The default blueprint: tabs of 3D views (the face with its crosses and jaw; the heatmaps,
-/// one selectable entity each) over three quarters of the width, the solver's plots beside.
-fn layout() -> Blueprint {
-    let face = Spatial3DView::new("face")
+/// one selectable entity each) over three quarters of the width, the solver's plots beside;
+/// and the blueprint paths of the two 3D views (for their eyes, [`send_layout`]).
+fn layout() -> (Blueprint, [EntityPath; 2]) {
+    let view_path = |view: &ContainerLike| match view {
+        ContainerLike::View(v) => v.blueprint_path(),
+        _ => unreachable!("a 3D view"),
+    };
+    let face: ContainerLike = Spatial3DView::new("face")
         .with_origin("/")
-        .with_contents(["+ /face/**", "- /face/heatmaps/**"]);
-    let heatmaps = Spatial3DView::new("heatmaps")
+        .with_contents(["+ /face/**", "- /face/heatmaps/**"])
+        .into();
+    let heatmaps: ContainerLike = Spatial3DView::new("heatmaps")
         .with_origin("/")
-        .with_contents(["+ /face/heatmaps/**"]);
+        .with_contents(["+ /face/heatmaps/**"])
+        .into();
+    let views = [view_path(&face), view_path(&heatmaps)];
     let plot = |name: &str, entities: &[&str]| -> ContainerLike {
         TimeSeriesView::new(name)
             .with_origin("/solver")
@@ -67,13 +77,90 @@ fn layout() -> Blueprint {
         plot("residual", &["residual"]),
         plot("time (ms)", &["solve_ms", "frame_ms"]),
     ]);
-    Blueprint::new(
-        Horizontal::new([
-            Tabs::new([face.into(), heatmaps.into()]).into(),
-            plots.into(),
-        ])
-        .with_column_shares([3.0, 1.0]),
-    )
+    let blueprint = Blueprint::new(
+        Horizontal::new([Tabs::new([face, heatmaps]).into(), plots.into()])
+            .with_column_shares([3.0, 1.0]),
+    );
+    (blueprint, views)
+}
+
+/// The viewer's vertical field of view, degrees (rerun's default eye).
+const VIEWER_FOV_Y_DEG: f32 = 55.0;
+
+/// A 3D view's framing of a face from its rest bounds: an eye in front of it (+z in the rig)
+/// looking at the centre from far enough that the head's height fills ~90 % of the view at
+/// the centre's depth (d = ½h·1.1 / tan(½·fov)), and the grid as a floor under the chin
+/// (rerun's planes are n·p − d = 0).
+fn framing(rest: &[[f32; 3]]) -> (EyeControls3D, LineGrid3D) {
+    let (lo, hi) = rest.iter().fold(
+        ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]),
+        |(lo, hi), p| {
+            (
+                std::array::from_fn(|k| lo[k].min(p[k])),
+                std::array::from_fn(|k| hi[k].max(p[k])),
+            )
+        },
+    );
+    let centre: [f32; 3] = std::array::from_fn(|k| 0.5 * (lo[k] + hi[k]));
+    let half_height = 0.5 * (hi[1] - lo[1]);
+    let distance = half_height * 1.1 / (0.5 * VIEWER_FOV_Y_DEG.to_radians()).tan();
+    let eye = EyeControls3D::new()
+        .with_position(Position3D::new(centre[0], centre[1], centre[2] + distance))
+        .with_look_target(Position3D::new(centre[0], centre[1], centre[2]))
+        .with_eye_up(Vector3D::from((0.0, 1.0, 0.0)));
+    let floor = LineGrid3D::new().with_plane(Plane3D::new((0.0, 1.0, 0.0), lo[1]));
+    (eye, floor)
+}
+
+/// Sends the default blueprint with both 3D views framed on the face ([`framing`]).
+///
+/// rerun 0.36's Rust `Spatial3DView` has no eye setting (Python's has `eye_controls`), so the
+/// blueprint's messages are taken from an in-memory stream and the eye is logged into the same
+/// blueprint store, at `<view>/EyeControls3D`, as the viewer reads a view's property.
+fn send_layout(rec: &rerun::RecordingStream, rest: &[[f32; 3]]) -> Result<()> {
+    use rerun::external::re_log_types::{BlueprintActivationCommand, StoreKind};
+    use rerun::log::LogMsg;
+    let (blueprint, views) = layout();
+    let (relay, relayed) = rerun::RecordingStreamBuilder::new("facesim").memory()?;
+    blueprint.send(&relay, BlueprintActivation::default())?;
+    let mut messages: Vec<LogMsg> = relayed
+        .take()
+        .into_iter()
+        .filter(|m| {
+            m.store_id().kind() == StoreKind::Blueprint
+                && !matches!(m, LogMsg::BlueprintActivationCommand(_))
+        })
+        .collect();
+    let store = messages
+        .first()
+        .context("the blueprint sent no messages")?
+        .store_id()
+        .clone();
+    let (eyes, eyes_out) = rerun::RecordingStreamBuilder::new("facesim")
+        .recording_id(store.recording_id().clone())
+        .blueprint()
+        .memory()?;
+    eyes.set_time_sequence("blueprint", 0);
+    let (eye, floor) = framing(rest);
+    for view in &views {
+        eyes.log(format!("{view}/EyeControls3D"), &eye)?;
+        eyes.log(format!("{view}/LineGrid3D"), &floor)?;
+    }
+    messages.extend(
+        eyes_out
+            .take()
+            .into_iter()
+            .filter(|m| !matches!(m, LogMsg::SetStoreInfo(_))),
+    );
+    rec.send_blueprint(
+        messages,
+        BlueprintActivationCommand {
+            blueprint_id: store,
+            make_active: true,
+            make_default: true,
+        },
+    );
+    Ok(())
 }
 
 /// Logs frames to one recording.
@@ -102,9 +189,8 @@ impl RerunLogger {
                 .with_context(|| format!("creating {}", path.display()))?,
         };
         // The rig's axes (x right, y up, z toward the viewer), so the viewer's camera starts
-        // upright; and a layout with the face large and the solver's plots beside it.
+        // upright; the layout goes with the first face (its eye frames that face).
         rec.log_static("/", &rerun::ViewCoordinates::RIGHT_HAND_Y_UP())?;
-        layout().send(&rec, BlueprintActivation::default())?;
         Ok(RerunLogger {
             rec,
             static_face: Mutex::new(None),
@@ -135,6 +221,9 @@ impl RerunLogger {
         {
             let mut face = self.static_face.lock().unwrap_or_else(|e| e.into_inner());
             if *face != Some(frame.face) {
+                if face.is_none() {
+                    send_layout(rec, &topology.rest)?;
+                }
                 rec.log_static(
                     "face/skin",
                     &rerun::Mesh3D::update_fields().with_triangle_indices(tris.clone()),

@@ -84,9 +84,9 @@ fn the_slider_drives_a_remote_session() {
     let token = Token::generate();
     let settings = ServerSettings::new(token.clone());
     std::thread::spawn(move || serve(listener, served, settings));
-    assert!(RemoteSession::connect(&addr, "not-the-token-at-all").is_err());
+    assert!(RemoteSession::connect(&addr, "not-the-token-at-all", None).is_err());
     let session: Arc<dyn SessionHandle> =
-        Arc::new(RemoteSession::connect(&addr, token.reveal()).unwrap());
+        Arc::new(RemoteSession::connect(&addr, token.reveal(), None).unwrap());
     jaw_slider_changes_the_face(session);
 }
 

@@ -54,7 +54,7 @@ fn an_rrd_written_by_the_editor_reads_back_in_the_python_sdk() {
     python_check(&root.join("ui/tests/check_rrd.py"), &[&rrd, &expected]);
 
     // The recording opens framed: the headless viewer's screenshot shows the face large and
-    // upright in the default blueprint's 3D view.
+    // upright and from the front in the default blueprint's 3D view.
     let picture = dir.join("viewer.png");
     let out = std::process::Command::new("python3")
         .args(["-m", "rerun"])
