@@ -10,7 +10,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use facesim::bench::contact::drag_pose;
-use facesim::contact::drive::LipField;
+use facesim::bench::mouth_poses::LipField;
 use facesim::contact::face::{FaceContact, FaceContactSettings};
 use facesim::contact::{Candidates, FixedPrimitives, VerletList};
 use facesim::sim::{ContactGate, Quality, SolveSettings};

@@ -10,7 +10,7 @@
 //! (from the repository root; reads `sample_models/ict/neutral-coarse.face`).
 
 use anyhow::{Context, Result};
-use facesim::contact::drive::LipField;
+use facesim::bench::mouth_poses::LipField;
 use facesim::contact::face::{FaceContact, FaceContactSettings};
 use facesim::model::FaceModel;
 use facesim::sim::{ContactGate, Quality, SolveSettings};

@@ -1,28 +1,28 @@
 //! `facesim train`, `facesim eval` and `facesim bench nets`: the command-line side of
 //! `facesim::generative` (data cache, progress bar, loss curve, checkpoints, tables).
 
-use std::io::Write;
+use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Instant;
 
 use anyhow::{Context, Result};
-use facesim::bench::median;
 use facesim::drive::ActuationModel;
 use facesim::generative::data::FacePoses;
-use facesim::generative::displacement::SAMPLE_DISPLACEMENT;
 use facesim::generative::eval::{EvalFace, EvalModel};
 use facesim::generative::face::FaceWarp;
-use facesim::generative::train::LOSS_CSV_HEADER;
+use facesim::generative::run::{
+    self, DISPLACEMENT_FILES, RunError, RunEvent, RunPlan, STAGE1_FILES, STAGE2_FILES,
+};
 use facesim::generative::transfer::NearestElementTransfer;
 use facesim::generative::{
     CanonicalFrame, DisplacementData, DisplacementFace, DisplacementNets, GenerativeFace,
-    GenerativeNets, ModelTrainer, NetworkSet, PoseSettings, Stage1Config, Stage1Data, Stage2Data,
-    Stage2Face, Stage2Settings, TrainingData, held_out_codes,
+    GenerativeNets, NetworkSet, PoseSettings, Stage1Config, Stage1Data, Stage2Data, Stage2Face,
+    Stage2Settings, TrainingData, held_out_codes,
 };
-use facesim::nn::Checkpoint;
 use facesim::rig::FaceRig;
 use facesim::sample::Sample;
+use facesim::stats::median;
 
 /// What `facesim train` trains.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
@@ -153,12 +153,6 @@ fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     std::fs::rename(&tmp, path).with_context(|| format!("renaming to {}", path.display()))
 }
 
-fn save_checkpoint(ck: &Checkpoint, path: &Path) -> Result<()> {
-    let mut bytes = Vec::new();
-    ck.to_writer(&mut bytes)?;
-    write_atomic(path, &bytes)
-}
-
 /// The stage-1 poses of every sample face: cached ones, the rest fitted (and cached); `rig`
 /// is loaded from `rig_dir` when first needed (and kept for the caller).
 fn stage1_poses(
@@ -271,13 +265,15 @@ pub fn train(a: &TrainArgs) -> Result<()> {
         ..defaults
     };
     let checkpoint_every = a.checkpoint_every.unwrap_or(if stage2 { 5 } else { 500 });
-    let run = |config: Stage1Config, files| RunSettings {
-        args: a,
+    let pose_settings = serde_json::to_value(&settings)?;
+    let run = |config: Stage1Config, files| RunPlan {
+        out: &a.out,
+        resume: a.resume,
         config,
         frame,
-        settings: &settings,
         files,
         checkpoint_every,
+        pose_settings: pose_settings.clone(),
     };
     match a.stage {
         Stage::One => {
@@ -369,113 +365,14 @@ fn stage2_defaults() -> Stage1Config {
     }
 }
 
-const STAGE1_FILES: RunFiles = RunFiles {
-    label: "stage 1",
-    model: "generative.nn",
-    checkpoint: "checkpoint.nn",
-    loss: "loss.csv",
-    summary: "train.json",
-    rows: "elements",
-};
-
-const STAGE2_FILES: RunFiles = RunFiles {
-    label: "stage 2",
-    model: "generative-stage2.nn",
-    checkpoint: "stage2-checkpoint.nn",
-    loss: "stage2-loss.csv",
-    summary: "stage2-train.json",
-    rows: "elements (all)",
-};
-
-const DISPLACEMENT_FILES: RunFiles = RunFiles {
-    label: "displacement baseline",
-    model: SAMPLE_DISPLACEMENT,
-    checkpoint: "displacement-checkpoint.nn",
-    loss: "displacement-loss.csv",
-    summary: "displacement-train.json",
-    rows: "vertices",
-};
-
-/// The files one training run writes in OUT.
-struct RunFiles {
-    label: &'static str,
-    model: &'static str,
-    checkpoint: &'static str,
-    loss: &'static str,
-    summary: &'static str,
-    /// What a pose's sampled rows are.
-    rows: &'static str,
-}
-
-/// Everything a training run needs besides its data.
-struct RunSettings<'a> {
-    args: &'a TrainArgs,
-    config: Stage1Config,
-    frame: CanonicalFrame,
-    settings: &'a PoseSettings,
-    files: &'a RunFiles,
-    checkpoint_every: u64,
-}
-
-/// The training loop of any model: resume, loss curve, progress bar, checkpoints, summary.
+/// Runs `data`'s training as `plan` says, with a progress bar, and prints how it went.
 fn run_training<D: TrainingData>(
-    run: &RunSettings<'_>,
+    plan: &RunPlan<'_>,
     data: &D,
     pose_count: usize,
     init: Option<D::Nets>,
 ) -> Result<()> {
-    let (a, config, files) = (run.args, run.config, run.files);
-    let ck_path = a.out.join(files.checkpoint);
-    let csv_path = a.out.join(files.loss);
-    let mut trainer = if a.resume {
-        let ck = Checkpoint::load(&ck_path)
-            .with_context(|| format!("loading {} to resume", ck_path.display()))?;
-        ModelTrainer::resume(data, config, &ck).context("resuming")?
-    } else {
-        anyhow::ensure!(
-            !ck_path.exists(),
-            "{} exists: pass --resume to continue that run, or remove it",
-            ck_path.display()
-        );
-        match init {
-            Some(nets) => ModelTrainer::from_nets(data, config, nets)?,
-            None => ModelTrainer::new(data, config, run.frame)?,
-        }
-    };
-    // The loss curve: keep the rows before the resumed iteration.
-    let mut csv = String::from(LOSS_CSV_HEADER);
-    csv.push('\n');
-    if a.resume && csv_path.exists() {
-        let old = std::fs::read_to_string(&csv_path)?;
-        for line in old.lines().skip(1) {
-            let it: u64 = line
-                .split(',')
-                .next()
-                .and_then(|s| s.parse().ok())
-                .unwrap_or(u64::MAX);
-            if it < trainer.iteration() {
-                csv.push_str(line);
-                csv.push('\n');
-            }
-        }
-    }
-    write_atomic(&csv_path, csv.as_bytes())?;
-    let mut csv_file = std::fs::OpenOptions::new()
-        .append(true)
-        .open(&csv_path)
-        .with_context(|| format!("opening {}", csv_path.display()))?;
-
-    eprintln!(
-        "{}: {} poses, {} iterations from {}, batch {} × {} {}, seed {}",
-        files.label,
-        pose_count,
-        config.iterations,
-        trainer.iteration(),
-        config.batch_poses,
-        config.elements_per_pose,
-        files.rows,
-        config.seed
-    );
+    let (config, files) = (plan.config, plan.files);
     let bar = indicatif::ProgressBar::new(config.iterations);
     bar.set_style(
         indicatif::ProgressStyle::with_template(
@@ -483,68 +380,52 @@ fn run_training<D: TrainingData>(
         )?
         .progress_chars("=> "),
     );
-    bar.set_position(trainer.iteration());
-    let start = Instant::now();
-    let mut step_ms = Vec::new();
-    let mut last = None;
-    let mut skipped = 0;
-    while !trainer.done() {
-        let t = Instant::now();
-        let row = trainer
-            .step()
-            .with_context(|| format!("iteration {}", trainer.iteration()))?;
-        step_ms.push(t.elapsed().as_secs_f64() * 1e3);
-        writeln!(csv_file, "{}", row.csv())?;
-        skipped += row.parts.skipped;
-        if row.iteration % 10 == 0 || config.elements_per_pose == 0 {
-            bar.set_message(format!(
-                "fit {:.4} jaw {:.4} cm² total {:.4}, {skipped} poses skipped",
-                row.parts.fit, row.parts.jaw, row.parts.total
-            ));
+    let report = run::run_training(plan, data, pose_count, init, &mut |event| match event {
+        RunEvent::Started { from } => {
+            eprintln!(
+                "{}: {pose_count} poses, {} iterations from {from}, batch {} × {} {}, seed {}",
+                files.label,
+                config.iterations,
+                config.batch_poses,
+                config.elements_per_pose,
+                files.rows,
+                config.seed
+            );
+            bar.set_position(from);
+            ControlFlow::Continue(())
         }
-        bar.inc(1);
-        if trainer.iteration() % run.checkpoint_every == 0 || trainer.done() {
-            csv_file.flush()?;
-            save_checkpoint(&trainer.checkpoint(), &ck_path)?;
+        RunEvent::Step { row, skipped } => {
+            if row.iteration % 10 == 0 || config.elements_per_pose == 0 {
+                bar.set_message(format!(
+                    "fit {:.4} jaw {:.4} cm² total {:.4}, {skipped} poses skipped",
+                    row.parts.fit, row.parts.jaw, row.parts.total
+                ));
+            }
+            bar.inc(1);
+            ControlFlow::Continue(())
         }
-        last = Some(row);
-    }
-    bar.finish_and_clear();
-    let seconds = start.elapsed().as_secs_f64();
-    let model_path = a.out.join(files.model);
-    trainer
-        .nets()
-        .to_checkpoint()
-        .save(&model_path)
-        .with_context(|| format!("writing {}", model_path.display()))?;
-    let ms = median(&step_ms);
-    let summary = serde_json::json!({
-        "stage": files.label,
-        "config": config,
-        "data_settings": data.settings(),
-        "pose_settings": run.settings,
-        "skipped_poses": skipped,
-        "poses": pose_count,
-        "iterations_run": step_ms.len(),
-        "seconds": seconds,
-        "median_ms_per_iteration": ms,
-        "last": last,
     });
-    write_atomic(
-        &a.out.join(files.summary),
-        serde_json::to_string_pretty(&summary)?.as_bytes(),
-    )?;
+    bar.finish_and_clear();
+    let report = report.map_err(|e| match e {
+        RunError::Exists(path) => anyhow::anyhow!(
+            "{} exists: pass --resume to continue that run, or remove it",
+            path.display()
+        ),
+        e => e.into(),
+    })?;
+    let ms = report.median_ms_per_iteration;
     println!(
-        "trained {} iterations in {seconds:.1} s (median {ms:.1} ms per iteration; {} iterations would take {:.1} min); wrote {}",
-        step_ms.len(),
+        "trained {} iterations in {:.1} s (median {ms:.1} ms per iteration; {} iterations would take {:.1} min); wrote {}",
+        report.iterations_run,
+        report.seconds,
         config.iterations,
         ms * config.iterations as f64 / 60e3,
-        model_path.display()
+        report.model.display()
     );
-    if let Some(r) = last {
+    if let Some(r) = report.last {
         println!(
-            "last batch: fit {:.5}, jaw {:.5} cm², act {:.4}, Π softplus(c) {:.3}, total {:.5}; {skipped} poses skipped in all",
-            r.parts.fit, r.parts.jaw, r.parts.act, r.parts.lip, r.parts.total
+            "last batch: fit {:.5}, jaw {:.5} cm², act {:.4}, Π softplus(c) {:.3}, total {:.5}; {} poses skipped in all",
+            r.parts.fit, r.parts.jaw, r.parts.act, r.parts.lip, r.parts.total, report.skipped
         );
     }
     Ok(())

@@ -21,3 +21,4 @@ pub mod sample;
 pub mod scene;
 pub mod session;
 pub mod sim;
+pub mod stats;

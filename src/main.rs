@@ -155,16 +155,52 @@ enum BenchTarget {
         sweep: Option<usize>,
         /// With `--sweep`: `contact` (on), `no-contact` (what the codes alone do) or `compare`
         /// (both from the same start each frame: which failures contact causes).
-        #[arg(long, default_value = "contact")]
-        sweep_mode: String,
+        #[arg(long, value_enum, default_value_t = SweepModeArg::Contact)]
+        sweep_mode: SweepModeArg,
         /// With `--sweep`: the sliders' range, `LOW,HIGH`.
         #[arg(long, default_value = "-0.5,1.5")]
-        sweep_range: String,
+        sweep_range: SliderRange,
         /// With `--sweep`: the codes' seed (different seeds give independent sweeps, e.g. to
         /// split a long sweep over processes).
         #[arg(long, default_value_t = 1)]
         sweep_seed: u64,
     },
+}
+
+/// `--sweep-mode` (the library's `SweepMode`, named for the command line).
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+enum SweepModeArg {
+    Contact,
+    NoContact,
+    Compare,
+}
+
+impl From<SweepModeArg> for facesim::bench::contact_sweep::SweepMode {
+    fn from(mode: SweepModeArg) -> Self {
+        match mode {
+            SweepModeArg::Contact => Self::Contact,
+            SweepModeArg::NoContact => Self::NoContact,
+            SweepModeArg::Compare => Self::Compare,
+        }
+    }
+}
+
+/// `LOW,HIGH`: finite, LOW ≤ HIGH.
+#[derive(Clone, Copy, Debug)]
+struct SliderRange {
+    low: f64,
+    high: f64,
+}
+
+impl std::str::FromStr for SliderRange {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        s.split_once(',')
+            .and_then(|(a, b)| Some((a.trim().parse::<f64>().ok()?, b.trim().parse::<f64>().ok()?)))
+            .filter(|(a, b)| a.is_finite() && b.is_finite() && a <= b)
+            .map(|(low, high)| SliderRange { low, high })
+            .ok_or_else(|| format!("must be LOW,HIGH with LOW ≤ HIGH, got '{s}'"))
+    }
 }
 
 fn main() -> Result<()> {
@@ -205,24 +241,8 @@ fn main() -> Result<()> {
                     ..
                 },
         } => {
-            let (low, high) = sweep_range
-                .split_once(',')
-                .and_then(|(a, b)| {
-                    Some((a.trim().parse::<f64>().ok()?, b.trim().parse::<f64>().ok()?))
-                })
-                .filter(|(a, b)| a.is_finite() && b.is_finite() && a <= b)
-                .with_context(|| {
-                    format!("--sweep-range must be LOW,HIGH with LOW ≤ HIGH, got '{sweep_range}'")
-                })?;
-            use facesim::bench::contact_sweep::SweepMode;
-            let mode = match sweep_mode.as_str() {
-                "contact" => SweepMode::Contact,
-                "no-contact" => SweepMode::NoContact,
-                "compare" => SweepMode::Compare,
-                other => anyhow::bail!(
-                    "unknown --sweep-mode '{other}' (expected contact, no-contact or compare)"
-                ),
-            };
+            let SliderRange { low, high } = sweep_range;
+            let mode = sweep_mode.into();
             let sample = facesim::sample::Sample::load(facesim::sample::SAMPLE_DIR)
                 .context("loading the bundled sample (run from the repository root)")?;
             let face = sample
@@ -231,7 +251,7 @@ fn main() -> Result<()> {
                 .find(|f| f.identity.is_none())
                 .context("the sample has no neutral face")?;
             eprintln!(
-                "sweeping {count} random codes (seed {sweep_seed}) in [{low}, {high}] on {} (interactive, {sweep_mode})…",
+                "sweeping {count} random codes (seed {sweep_seed}) in [{low}, {high}] on {} (interactive, {sweep_mode:?})…",
                 face.name
             );
             let codes =

@@ -229,6 +229,17 @@ fn contact_sweep_reports_frames_and_writes_json() {
     assert_eq!(report["contact"]["ok"], 2);
     assert_eq!(report["contact"]["intersecting"], 0);
     assert_eq!(report["contact"]["from_rest"], 0);
+
+    // Typed arguments: a bad range or mode is refused before anything loads.
+    for (flag, value, says) in [
+        ("--sweep-range", "1.5,-0.5", "LOW ≤ HIGH"),
+        ("--sweep-range", "0,nan", "LOW ≤ HIGH"),
+        ("--sweep-mode", "sometimes", "no-contact"),
+    ] {
+        let stderr =
+            stderr_of_failure(facesim().args(["bench", "contact", "--sweep", "1", flag, value]));
+        assert!(stderr.contains(says), "{flag} {value}: {stderr}");
+    }
 }
 
 /// `bench shapes` measures the chosen sliders on the chosen faces against the rig, vertex by

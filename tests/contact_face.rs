@@ -7,7 +7,7 @@
 use std::path::PathBuf;
 use std::sync::OnceLock;
 
-use facesim::contact::drive::{LipField, MouthPose, random_poses, run_sequence};
+use facesim::bench::mouth_poses::{LipField, MouthPose, random_poses, run_sequence};
 use facesim::contact::face::{FaceContact, FaceContactSettings};
 use facesim::model::{FaceModel, Lod, build_face};
 use facesim::rig::FaceRig;

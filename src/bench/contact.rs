@@ -16,7 +16,7 @@ use std::time::Duration;
 use serde::Serialize;
 
 use super::median;
-use crate::contact::drive::{FrameOutcome, LipField, MouthPose, run_sequence};
+use super::mouth_poses::{FrameOutcome, LipField, MouthPose, run_sequence};
 use crate::contact::face::{FaceContact, FaceContactSettings};
 use crate::model::FaceModel;
 use crate::sim::{

@@ -3,42 +3,11 @@ pub mod contact;
 pub mod contact_sweep;
 pub mod editor;
 pub mod extremes;
+pub mod mouth_poses;
 pub mod remote;
 pub mod sequence;
 pub mod shapes;
 pub mod solver;
 pub mod tradeoff;
 
-/// The median of `values` (the mean of the two middle ones for an even count; NaN when
-/// there are none, so an empty measurement never reads as a time of 0).
-pub fn median(values: &[f64]) -> f64 {
-    let mut sorted = values.to_vec();
-    sorted.sort_by(f64::total_cmp);
-    let n = sorted.len();
-    match n {
-        0 => f64::NAN,
-        _ if n % 2 == 1 => sorted[n / 2],
-        _ => 0.5 * (sorted[n / 2 - 1] + sorted[n / 2]),
-    }
-}
-
-/// The `p`-quantile of `values` (nearest rank; `values` need not be sorted, must not be
-/// empty).
-pub(crate) fn percentile(values: &[f64], p: f64) -> f64 {
-    let mut sorted = values.to_vec();
-    sorted.sort_by(f64::total_cmp);
-    sorted[((sorted.len() - 1) as f64 * p).round() as usize]
-}
-
-#[cfg(test)]
-mod tests {
-    use super::{median, percentile};
-
-    #[test]
-    fn median_takes_the_middle_or_the_mean_of_the_two_and_is_nan_for_nothing() {
-        assert_eq!(median(&[3.0, 1.0, 2.0]), 2.0);
-        assert_eq!(median(&[4.0, 1.0, 3.0, 2.0]), 2.5);
-        assert!(median(&[]).is_nan());
-        assert_eq!(percentile(&[4.0, 1.0, 3.0, 2.0, 5.0], 0.5), 3.0);
-    }
-}
+pub use crate::stats::{median, percentile};

@@ -39,9 +39,9 @@ use super::candidates::{Candidates, EdgeFaceLayouts};
 use super::collisions::Collisions;
 use super::math::vertex;
 use super::mesh::{Cells, ContactMesh, NO_CELL};
+use crate::geometry::crossing::segment_crosses_triangle;
 use crate::model::{Binding, FaceModel};
 use crate::rig::Region;
-use crate::rig::intersect::segment_crosses_triangle;
 use crate::sim::{Bone, BonePose};
 
 /// Which part of the face takes part in contact.

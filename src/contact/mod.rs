@@ -23,7 +23,6 @@ pub mod candidates;
 pub mod ccd;
 pub mod collisions;
 pub mod distance;
-pub mod drive;
 pub mod face;
 mod math;
 pub mod mesh;

@@ -9,34 +9,9 @@
 
 pub mod basis;
 
-use serde::{Deserialize, Serialize};
-
-use crate::rig::ExpressionCode;
-use crate::rig::style::StyleCode;
+use crate::rig::codes::CodeError;
+pub use crate::rig::codes::Codes;
 use crate::sim::{BonePose, RigidMotion, SymTensor};
-
-/// What the sliders set: the expression and the style.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct Codes {
-    pub expression: ExpressionCode,
-    pub style: StyleCode,
-}
-
-impl Codes {
-    /// Rejects non-finite entries, naming the slider.
-    pub fn validate(&self) -> Result<(), DriveError> {
-        let named = self
-            .expression
-            .iter()
-            .chain(StyleCode::NAMES.iter().copied().zip(self.style.0));
-        for (name, value) in named {
-            if !value.is_finite() {
-                return Err(DriveError::NonFiniteCode { name, value });
-            }
-        }
-        Ok(())
-    }
-}
 
 /// One frame's inputs to the simulator.
 #[derive(Clone, Debug, PartialEq)]
@@ -65,6 +40,14 @@ pub enum DriveError {
     ElementCount { expected: usize, got: usize },
     #[error("the actuation model produced an unusable tensor at element {element}: {reason}")]
     BadTensor { element: usize, reason: String },
+}
+
+impl From<CodeError> for DriveError {
+    fn from(e: CodeError) -> Self {
+        match e {
+            CodeError::NonFinite { name, value } => DriveError::NonFiniteCode { name, value },
+        }
+    }
 }
 
 /// Codes → actuations for one face (module doc).

@@ -26,6 +26,7 @@ pub mod face;
 pub mod loss;
 pub mod metrics;
 pub mod nets;
+pub mod run;
 pub mod stage2;
 pub mod train;
 pub mod transfer;

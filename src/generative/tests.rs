@@ -530,3 +530,57 @@ fn bundled_networks_drive_every_sample_face() {
         );
     }
 }
+
+/// A run kept in a folder (`generative::run`), stopped after 3 of 6 iterations and resumed,
+/// ends bit for bit where an uninterrupted run ends, its loss curve holds each iteration once,
+/// and a fresh run over an existing checkpoint is refused.
+#[test]
+fn a_stopped_run_resumes_to_the_same_networks() {
+    use std::ops::ControlFlow;
+
+    use super::run::{RunError, RunEvent, RunPlan, STAGE1_FILES, run_training};
+    let data = small_data();
+    let root = std::env::temp_dir().join(format!("facesim-run-{}", std::process::id()));
+    let (straight, stopped) = (root.join("straight"), root.join("stopped"));
+    for d in [&straight, &stopped] {
+        std::fs::create_dir_all(d).unwrap();
+    }
+    let plan = |out, resume| RunPlan {
+        out,
+        resume,
+        config: small_config(6, 4),
+        frame: frame(),
+        files: &STAGE1_FILES,
+        checkpoint_every: 4,
+        pose_settings: serde_json::Value::Null,
+    };
+    let poses = data.pose_count();
+    let go = &mut |_: RunEvent<'_>| ControlFlow::Continue(());
+    let whole = run_training(&plan(&straight, false), data, poses, None, go).unwrap();
+    assert!(whole.finished && whole.iterations_run == 6);
+
+    let stop_at_3 = &mut |e: RunEvent<'_>| match e {
+        RunEvent::Step { row, .. } if row.iteration == 2 => ControlFlow::Break(()),
+        _ => ControlFlow::Continue(()),
+    };
+    let first = run_training(&plan(&stopped, false), data, poses, None, stop_at_3).unwrap();
+    assert!(!first.finished && first.iterations_run == 3);
+    assert!(!stopped.join(STAGE1_FILES.model).exists());
+    let again = run_training(&plan(&stopped, false), data, poses, None, go);
+    assert!(matches!(again, Err(RunError::Exists(_))), "{again:?}");
+    let rest = run_training(&plan(&stopped, true), data, poses, None, go).unwrap();
+    assert!(rest.finished && rest.iterations_run == 3);
+
+    let nets = |dir: &std::path::Path| GenerativeNets::load(&dir.join(STAGE1_FILES.model)).unwrap();
+    assert_eq!(bits(&nets(&straight)), bits(&nets(&stopped)));
+    let curve =
+        |dir: &std::path::Path| std::fs::read_to_string(dir.join(STAGE1_FILES.loss)).unwrap();
+    assert_eq!(curve(&straight).lines().count(), 1 + 6);
+    let iterations: Vec<String> = curve(&stopped)
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').next().unwrap().to_string())
+        .collect();
+    assert_eq!(iterations, ["0", "1", "2", "3", "4", "5"]);
+    std::fs::remove_dir_all(&root).unwrap();
+}

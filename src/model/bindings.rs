@@ -27,6 +27,7 @@ use serde::{Deserialize, Serialize};
 use super::bone_motion::BoneMotion;
 use super::face::{Binding, FaceModel, RenderSurface};
 use super::fit::{ActuationFitter, FitError, FitSettings};
+use super::report::BindingReport;
 use super::targets::{TargetError, shape_target};
 use crate::geometry::bvh::Box3;
 use crate::geometry::embedding::{Embedding, barycentric, distance_to_tet, element_tree};
@@ -68,38 +69,6 @@ impl Default for BindingSettings {
             max_skin_error: 0.5,
         }
     }
-}
-
-/// How the render surface is bound and how well it reproduces the rig.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct BindingReport {
-    /// Render vertices the tissue alone moves.
-    pub embedded_vertices: usize,
-    /// Skin vertices the tissue and the skull share (`0 < s < 1`, [`Binding::Blended`]).
-    pub blended_vertices: usize,
-    /// Skin vertices outside the tissue that follow the skull alone (`s = 0`).
-    pub skin_on_bone_vertices: usize,
-    /// Render vertices one bone alone moves (teeth, the gums on one bone).
-    pub rigid_vertices: usize,
-    /// Render vertices between the bones ([`Binding::Bones`]: the deep lining, the tongue).
-    pub between_bones_vertices: usize,
-    /// Largest distance outside the tissue of a render vertex the tissue moves, fully or
-    /// blended (cm): how far its position is extrapolated.
-    pub max_embed_distance: f64,
-    /// Vertices whose binding the rig's shapes changed (step 2 of the module doc).
-    pub rebound_vertices: usize,
-    /// Largest distance of a moving skin vertex from the rig over the basis shapes (cm),
-    /// where on the rig and in which shape.
-    pub skin_max_error: f64,
-    pub skin_worst_vertex: u32,
-    pub skin_worst_shape: String,
-    /// The 95th percentile over moving skin vertices of each one's largest distance (cm).
-    pub skin_p95_error: f64,
-    /// The mouth lining's mean distance from the rig in its worst shape (cm), and that shape.
-    pub lining_mean_error: f64,
-    pub lining_worst_shape: String,
-    /// The shapes fitted for the choice.
-    pub shapes: usize,
 }
 
 #[derive(Debug, thiserror::Error)]

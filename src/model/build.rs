@@ -15,13 +15,13 @@ use nalgebra::{Point3, Vector3};
 use serde::{Deserialize, Serialize};
 
 use super::bindings::{
-    BindingError, BindingReport, BindingSettings, distance_to, element_shares, fit_to_rig,
-    render_surface,
+    BindingError, BindingSettings, distance_to, element_shares, fit_to_rig, render_surface,
 };
 use super::bone_motion::BoneMotion;
 use super::face::FaceModel;
 use super::fit::LINING_CONTACT;
-use crate::geometry::improve::{ImproveReport, smart_smooth};
+use super::report::BuildReport;
+use crate::geometry::improve::smart_smooth;
 use crate::geometry::query::TriangleIndex;
 use crate::geometry::remesh::{Surface, min_angles, remesh_sized};
 use crate::geometry::shell::{ShellError, extrude, quality, smooth_directions, vertex_normals};
@@ -131,37 +131,6 @@ impl Default for BuildSettings {
             bindings: BindingSettings::default(),
         }
     }
-}
-
-/// What the importer did and measured, for the user and the README.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct BuildReport {
-    pub intersections_before_repair: usize,
-    pub intersections_after_repair: usize,
-    pub repaired_vertices: usize,
-    pub max_repair_displacement: f64,
-    pub skin_vertices: usize,
-    pub skin_triangles: usize,
-    /// Smallest angle of any simulation skin triangle, degrees.
-    pub skin_min_angle_deg: f64,
-    /// Skin triangles left out of the tissue layer because it cannot be extruded there (the
-    /// surface folds back on itself).
-    pub dropped_triangles: usize,
-    /// Thinning rounds needed so that no prism folds.
-    pub thinning_rounds: usize,
-    pub thickness_min: f64,
-    pub thickness_median: f64,
-    pub thickness_max: f64,
-    pub skull_attached: usize,
-    pub jaw_attached: usize,
-    pub jaw_pivot_rms_motion: f64,
-    /// Rigid fit error of the lower teeth under jawOpen (cm).
-    pub jaw_fit_rms: f64,
-    /// How the render surface is bound, and how well it follows the rig.
-    pub bindings: BindingReport,
-    /// The interior smoothing pass (worst dihedral angle before and after).
-    pub improvement: Option<ImproveReport>,
-    pub seconds: f64,
 }
 
 #[derive(Debug, thiserror::Error)]

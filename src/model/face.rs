@@ -6,8 +6,8 @@ use std::path::Path;
 use nalgebra::{Matrix3, Point3};
 use serde::{Deserialize, Serialize};
 
-use super::build::BuildReport;
 use super::file::{self, FileError, Format};
+use super::report::BuildReport;
 use crate::geometry::TetMesh;
 use crate::geometry::embedding::interpolate;
 use crate::geometry::shell::MeshQuality;

@@ -7,10 +7,12 @@ pub mod build;
 pub mod face;
 pub mod file;
 pub mod fit;
+pub mod report;
 pub mod targets;
 
-pub use build::{BuildError, BuildReport, BuildSettings, Lod, build_face};
+pub use build::{BuildError, BuildSettings, Lod, build_face};
 pub use face::{Binding, FaceModel, RenderSurface};
+pub use report::{BindingReport, BuildReport};
 pub use targets::{Target, TargetError, shape_target, target};
 
 #[cfg(test)]

@@ -5,8 +5,8 @@
 use nalgebra::Point3;
 
 use super::face::FaceModel;
-use crate::drive::{Codes, DriveError};
 use crate::rig::FaceRig;
+use crate::rig::codes::{CodeError, Codes};
 use crate::rig::jaw::{JawError, RigidFit, fit_jaw};
 
 /// The rig's answer for one face and one pair of codes.
@@ -24,7 +24,7 @@ pub struct Target {
 #[derive(Debug, thiserror::Error)]
 pub enum TargetError {
     #[error(transparent)]
-    Code(#[from] DriveError),
+    Code(#[from] CodeError),
     #[error("the face '{face}' was built from another rig: {reason}")]
     RigMismatch { face: String, reason: String },
     #[error("the rig has no shape '{0}', which the style needs")]
@@ -168,7 +168,7 @@ mod tests {
         bad.expression.0[3] = f64::NAN;
         assert!(matches!(
             target(rig(), face, &bad),
-            Err(TargetError::Code(DriveError::NonFiniteCode {
+            Err(TargetError::Code(CodeError::NonFinite {
                 name: "jawForward",
                 ..
             }))

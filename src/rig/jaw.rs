@@ -18,24 +18,14 @@
 //! Blending shapes linearly moves the teeth along straight lines, which is not a rigid
 //! motion for a rotating jaw, so partial weights give non-zero fit errors: they are reported.
 
-use nalgebra::{Matrix3, Point3, Rotation3, UnitQuaternion, Vector3};
+use nalgebra::{Matrix3, Point3, Vector3};
 
 use super::expression::ExpressionCode;
 use super::face_rig::FaceRig;
 use super::regions::Region;
-use crate::sim::attachment::RigidMotion;
+use crate::geometry::rigid::KabschError;
 
-/// A rigid fit and how well it fits.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct RigidFit {
-    /// The motion about `pivot`.
-    pub motion: RigidMotion,
-    pub pivot: Point3<f64>,
-    /// `sqrt(mean ‖R·pᵢ + t − qᵢ‖²)` (cm).
-    pub rms_error: f64,
-    /// `max ‖R·pᵢ + t − qᵢ‖` (cm).
-    pub max_error: f64,
-}
+pub use crate::sim::attachment::RigidFit;
 
 /// Why a rigid fit could not be computed.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -52,68 +42,18 @@ pub enum JawError {
     UnknownShape(String),
 }
 
-/// Kabsch fit of `posed ≈ R·rest + t` (module doc), returned as a motion about `pivot`.
+/// Kabsch fit of `posed ≈ R·rest + t` (module doc, [`crate::geometry::rigid`]), returned
+/// as a motion about `pivot`.
 pub fn fit_rigid(
     rest: &[Point3<f64>],
     posed: &[Point3<f64>],
     pivot: &Point3<f64>,
 ) -> Result<RigidFit, JawError> {
-    if rest.len() != posed.len() {
-        return Err(JawError::LengthMismatch {
-            rest: rest.len(),
-            posed: posed.len(),
-        });
-    }
-    if rest.len() < 3 {
-        return Err(JawError::TooFewPoints(rest.len()));
-    }
-    let finite = |p: &Point3<f64>| p.coords.iter().all(|c| c.is_finite());
-    if !rest.iter().chain(posed).all(finite) || !finite(pivot) {
-        return Err(JawError::NonFinite);
-    }
-    let n = rest.len() as f64;
-    let p_bar = rest.iter().fold(Vector3::zeros(), |s, p| s + p.coords) / n;
-    let q_bar = posed.iter().fold(Vector3::zeros(), |s, q| s + q.coords) / n;
-    let mut h = Matrix3::zeros();
-    for (p, q) in rest.iter().zip(posed) {
-        h += (p.coords - p_bar) * (q.coords - q_bar).transpose();
-    }
-    let r = kabsch_rotation(&h);
-    let t = q_bar - r * p_bar;
-    let (mut sum2, mut max) = (0.0, 0.0f64);
-    for (p, q) in rest.iter().zip(posed) {
-        let e = (r * p.coords + t - q.coords).norm();
-        sum2 += e * e;
-        max = max.max(e);
-    }
-    // Via the quaternion (Shepperd's method): robust for rotations near the identity, where
-    // the trace-based angle of `Rotation3::scaled_axis` can be NaN from rounding.
-    let rotation =
-        UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(r)).scaled_axis();
-    if !rotation.iter().all(|c| c.is_finite()) {
-        return Err(JawError::NonFinite);
-    }
-    Ok(RigidFit {
-        motion: RigidMotion {
-            rotation,
-            translation: t + r * pivot.coords - pivot.coords,
-        },
-        pivot: *pivot,
-        rms_error: (sum2 / n).sqrt(),
-        max_error: max,
+    RigidFit::fit(rest, posed, pivot).map_err(|e| match e {
+        KabschError::LengthMismatch { rest, posed } => JawError::LengthMismatch { rest, posed },
+        KabschError::TooFewPoints(n) => JawError::TooFewPoints(n),
+        KabschError::NonFinite => JawError::NonFinite,
     })
-}
-
-/// The proper rotation maximising `tr(R·H)`: `V·diag(1, 1, sign det(V·Uᵀ))·Uᵀ` for
-/// `H = U·Σ·Vᵀ`.
-fn kabsch_rotation(h: &Matrix3<f64>) -> Matrix3<f64> {
-    let svd = h.svd(true, true);
-    let (Some(u), Some(v_t)) = (svd.u, svd.v_t) else {
-        unreachable!("SVD computed with U and Vᵀ requested");
-    };
-    let v = v_t.transpose();
-    let d = (v * u.transpose()).determinant().signum();
-    v * Matrix3::from_diagonal(&Vector3::new(1.0, 1.0, d)) * u.transpose()
 }
 
 /// The point that moves least over `motions` (each about the origin: `x ↦ R_k·x + t_k`), in
@@ -240,6 +180,8 @@ pub fn estimate_pivot_from(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::sim::RigidMotion;
+    use nalgebra::Rotation3;
     use rand::{Rng, SeedableRng};
 
     fn random_points(n: usize, seed: u64) -> Vec<Point3<f64>> {

@@ -7,6 +7,7 @@
 //! - [`obj`]: OBJ reading (file vertex order kept, quads kept) and writing.
 //! - [`regions`]: the rig's named pieces (skin, mouth socket, teeth, …) as index ranges.
 //! - [`expression`]: shape names and the default 19-d [`ExpressionCode`].
+//! - [`codes`]: [`Codes`], an expression and a style code: the model's inputs.
 //! - [`face_rig`]: [`FaceRig::load`], validation, [`FaceRig::pose`].
 //! - [`jaw`]: rigid fit of the lower teeth (the jaw transform of a pose) and the jaw pivot.
 //! - [`surface`]: triangle surfaces made of rig regions (pose-independent topology).
@@ -16,6 +17,7 @@
 //!
 //! Units are centimetres throughout; +y up, +z out of the face.
 
+pub mod codes;
 pub mod expression;
 pub mod face_rig;
 pub mod gap;
@@ -27,6 +29,7 @@ pub mod repair;
 pub mod style;
 pub mod surface;
 
+pub use codes::Codes;
 pub use expression::ExpressionCode;
 pub use face_rig::{FaceRig, LoadProgress, RigError, RigIndices};
 pub use obj::{ObjError, ObjMesh, Polygons};

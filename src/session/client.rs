@@ -16,7 +16,7 @@ use super::handle::{FrameObserver, SessionHandle};
 use super::protocol::{Encoding, Entries, FaceInfo, FaceRef, Message, Reply};
 use super::tls::{ClientTls, Duplex, TlsError};
 use super::wire::{QuantizedGeometry, inflate};
-use super::worker::{Inputs, Request, apply_requests};
+use super::worker::{Inputs, Request, SessionError, apply_requests};
 use crate::rig::style::StyleCode;
 
 #[derive(Debug, thiserror::Error)]
@@ -335,10 +335,10 @@ impl SessionHandle for RemoteSession {
             .unwrap_or_else(|e| e.into_inner())
             .inputs
     }
-    fn submit(&self, requests: &[Request]) -> Result<(), String> {
+    fn submit(&self, requests: &[Request]) -> Result<(), SessionError> {
         let styles: Vec<StyleCode> = self.faces.iter().map(|f| f.default_style).collect();
         let mut s = self.state.0.lock().unwrap_or_else(|e| e.into_inner());
-        let inputs = apply_requests(s.inputs, requests, &styles).map_err(|e| e.to_string())?;
+        let inputs = apply_requests(s.inputs, requests, &styles)?;
         if inputs != s.inputs {
             s.inputs = inputs;
             s.dirty = true;

@@ -5,7 +5,7 @@ use std::sync::Arc;
 use super::face::FaceTopology;
 use super::frame::Frame;
 use super::protocol::FaceInfo;
-use super::worker::{Inputs, Request, Session};
+use super::worker::{Inputs, Request, Session, SessionError};
 
 /// A callback run with each new frame.
 pub type FrameObserver = Box<dyn Fn(&Arc<Frame>) + Send + Sync>;
@@ -16,7 +16,7 @@ pub trait SessionHandle: Send + Sync {
     /// The inputs as requested so far (what the sliders show).
     fn inputs(&self) -> Inputs;
     /// Applies `requests` (latest wins); the error says why nothing changed.
-    fn submit(&self, requests: &[Request]) -> Result<(), String>;
+    fn submit(&self, requests: &[Request]) -> Result<(), SessionError>;
     fn latest(&self) -> Option<Arc<Frame>>;
     /// Called (from another thread) with every new frame, e.g. to repaint or to log it.
     fn on_new_frame(&self, notify: FrameObserver);
@@ -43,10 +43,8 @@ impl SessionHandle for Session {
     fn inputs(&self) -> Inputs {
         Session::inputs(self)
     }
-    fn submit(&self, requests: &[Request]) -> Result<(), String> {
-        self.submit_all(requests)
-            .map(|_| ())
-            .map_err(|e| e.to_string())
+    fn submit(&self, requests: &[Request]) -> Result<(), SessionError> {
+        self.submit_all(requests).map(|_| ())
     }
     fn latest(&self) -> Option<Arc<Frame>> {
         Session::latest(self)

@@ -10,11 +10,12 @@ use serde::{Deserialize, Serialize};
 use super::face::{FaceTopology, SessionFace};
 use super::frame::{Frame, FrameStats, Overlays, Solved, geometry};
 use super::heatmap::{FieldSource, builtin_sources};
+use crate::contact::ContactError;
 use crate::contact::face::{FaceContact, FaceContactSettings};
 use crate::drive::{Codes, DriveError};
 use crate::rig::ExpressionCode;
 use crate::rig::style::StyleCode;
-use crate::sim::{Quality, RigidMotion, SimState, Simulator, SolveSettings};
+use crate::sim::{Quality, RigidMotion, SimError, SimState, Simulator, SolveSettings};
 
 /// How long the inputs must rest before the frame is refined to the next preset.
 pub const REST_BEFORE_REFINING: Duration = Duration::from_millis(150);
@@ -91,6 +92,21 @@ pub enum SessionError {
     Stopped,
     #[error("no frame within {seconds} s (the solve is still running)")]
     TimedOut { seconds: u64 },
+}
+
+/// Why a frame could not be solved: it becomes an error frame saying so.
+#[derive(Debug, thiserror::Error)]
+enum FrameError {
+    #[error(transparent)]
+    Actuation(#[from] DriveError),
+    #[error(transparent)]
+    Simulator(#[from] SimError),
+    #[error("contact surfaces: {0}")]
+    Contact(#[from] ContactError),
+    #[error("the solve failed: {0}")]
+    Solve(SimError),
+    #[error("the solve produced non-finite geometry")]
+    NonFinite,
 }
 
 struct Pending {
@@ -321,7 +337,7 @@ pub fn apply_requests(
             Request::Contact(c) => inputs.contact = *c,
         }
     }
-    inputs.codes.validate()?;
+    inputs.codes.validate().map_err(DriveError::from)?;
     Ok(inputs)
 }
 
@@ -496,19 +512,15 @@ impl Worker {
                 (last.actuation.clone(), stats, last.quality)
             });
         let quality = reused.as_ref().map_or(quality, |r| r.2);
-        let result = (|| -> Result<_, String> {
+        let result = (|| -> Result<_, FrameError> {
             if let Some((actuation, stats, _)) = reused.clone() {
                 return Ok(Some((actuation, stats)));
             }
-            let actuation = face
-                .actuation
-                .actuate(&inputs.codes)
-                .map_err(|e| e.to_string())?;
+            let actuation = face.actuation.actuate(&inputs.codes)?;
             if self.sims[inputs.face].is_none() {
-                let mut sim = face.model.simulator().map_err(|e| e.to_string())?;
-                let surfaces = FaceContact::new(&face.model, &FaceContactSettings::default())
-                    .map_err(|e| format!("contact surfaces: {e}"))?;
-                sim.set_contact(surfaces).map_err(|e| e.to_string())?;
+                let mut sim = face.model.simulator()?;
+                let surfaces = FaceContact::new(&face.model, &FaceContactSettings::default())?;
+                sim.set_contact(surfaces)?;
                 let state = sim.rest_state();
                 let good_x = state.flat_positions().to_vec();
                 self.sims[inputs.face] = Some(FaceSim {
@@ -572,7 +584,7 @@ impl Worker {
                     if let Ok(state) = fs.sim.state_at(&good) {
                         fs.state = state;
                     }
-                    Err(format!("the solve failed: {e}"))
+                    Err(FrameError::Solve(e))
                 }
             }
         })();
@@ -625,15 +637,10 @@ impl Worker {
                             error: None,
                         }
                     }
-                    None => self.error_frame(
-                        inputs,
-                        generation,
-                        quality,
-                        "the solve produced non-finite geometry".into(),
-                    ),
+                    None => self.error_frame(inputs, generation, quality, FrameError::NonFinite),
                 }
             }
-            Err(message) => self.error_frame(inputs, generation, quality, message),
+            Err(error) => self.error_frame(inputs, generation, quality, error),
         };
         let frame = Arc::new(frame);
         if frame.error.is_none() {
@@ -653,7 +660,7 @@ impl Worker {
         inputs: &Inputs,
         generation: u64,
         quality: Quality,
-        message: String,
+        error: FrameError,
     ) -> Frame {
         self.index += 1;
         let base = self.last_good.as_ref().filter(|f| f.face == inputs.face);
@@ -698,7 +705,7 @@ impl Worker {
                 contact_skipped: false,
                 reused: false,
             },
-            error: Some(message),
+            error: Some(error.to_string()),
         }
     }
 }

@@ -11,6 +11,7 @@ use nalgebra::{Matrix3, Point3, Rotation3, Vector3};
 use serde::{Deserialize, Serialize};
 
 use super::polar::skew;
+use crate::geometry::rigid::{KabschError, kabsch};
 
 /// Which bone a tissue vertex is attached to.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -66,6 +67,42 @@ impl RigidMotion {
             .iter()
             .chain(self.translation.iter())
             .all(|v| v.is_finite())
+    }
+}
+
+/// A rigid motion about a pivot fitted to points, and how well it fits.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RigidFit {
+    /// The motion about `pivot`.
+    pub motion: RigidMotion,
+    pub pivot: Point3<f64>,
+    /// `sqrt(mean ‖R·pᵢ + t − qᵢ‖²)` (cm).
+    pub rms_error: f64,
+    /// `max ‖R·pᵢ + t − qᵢ‖` (cm).
+    pub max_error: f64,
+}
+
+impl RigidFit {
+    /// The Kabsch fit of `posed ≈ R·rest + t` ([`kabsch`]) as a motion about `pivot`
+    /// (`x ↦ R·(x − c) + c + t_c` with `t_c = t + R·c − c`).
+    pub fn fit(
+        rest: &[Point3<f64>],
+        posed: &[Point3<f64>],
+        pivot: &Point3<f64>,
+    ) -> Result<Self, KabschError> {
+        if !pivot.coords.iter().all(|c| c.is_finite()) {
+            return Err(KabschError::NonFinite);
+        }
+        let k = kabsch(rest, posed)?;
+        Ok(RigidFit {
+            motion: RigidMotion {
+                rotation: k.rotation,
+                translation: k.translation + k.matrix * pivot.coords - pivot.coords,
+            },
+            pivot: *pivot,
+            rms_error: k.rms_error,
+            max_error: k.max_error,
+        })
     }
 }
 

@@ -695,7 +695,7 @@ impl<'a> ContactSolve<'a> {
 #[cfg(test)]
 mod tests {
     use super::ContactStats;
-    use crate::contact::drive::{LipField, MouthPose};
+    use crate::bench::mouth_poses::{LipField, MouthPose};
     use crate::contact::face::{FaceContact, FaceContactSettings};
     use crate::sim::{BonePose, Quality, SimState, Simulator, SymTensor};
 

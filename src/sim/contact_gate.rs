@@ -264,7 +264,7 @@ pub(crate) fn note_refusal(stats: &mut SolveStats, outcome: GateOutcome, attempt
 #[cfg(test)]
 mod tests {
     use super::{ContactGate, GateOutcome};
-    use crate::contact::drive::{LipField, MouthPose};
+    use crate::bench::mouth_poses::{LipField, MouthPose};
     use crate::contact::face::{FaceContact, FaceContactSettings};
     use crate::sim::{BonePose, Quality, SimState, Simulator, SolveSettings, SolveStats};
 

@@ -19,7 +19,7 @@ pub mod tensor;
 mod vector;
 
 pub use adjoint::Sensitivities;
-pub use attachment::{Attachments, Bone, BonePose, RigidMotion};
+pub use attachment::{Attachments, Bone, BonePose, RigidFit, RigidMotion};
 pub use contact::{ContactStats, ContactStep};
 pub use contact_gate::{ContactGate, GateOutcome};
 pub use simulator::{SimConfig, SimError, SimState, Simulator};

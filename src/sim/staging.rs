@@ -358,8 +358,8 @@ const VOLUME_FIT_ROUNDS: usize = 32;
 /// Each bone's rigid motion from one pose to another, as its contact vertices (the teeth)
 /// make it (a Kabsch fit of their two positions, exact up to rounding).
 struct BoneMotions {
-    skull: Option<crate::rig::jaw::RigidFit>,
-    jaw: Option<crate::rig::jaw::RigidFit>,
+    skull: Option<super::attachment::RigidFit>,
+    jaw: Option<super::attachment::RigidFit>,
 }
 
 impl BoneMotions {
@@ -380,7 +380,7 @@ impl BoneMotions {
                 .collect();
             let from: Vec<_> = on.iter().map(|&i| at(&ya, i)).collect();
             let to: Vec<_> = on.iter().map(|&i| at(&yb, i)).collect();
-            crate::rig::jaw::fit_rigid(&from, &to, &Point3::origin()).ok()
+            super::attachment::RigidFit::fit(&from, &to, &Point3::origin()).ok()
         };
         Self {
             skull: fit(Bone::Skull),
@@ -388,7 +388,7 @@ impl BoneMotions {
         }
     }
 
-    fn get(&self, bone: Bone) -> Option<&crate::rig::jaw::RigidFit> {
+    fn get(&self, bone: Bone) -> Option<&super::attachment::RigidFit> {
         match bone {
             Bone::Skull => self.skull.as_ref(),
             Bone::Jaw => self.jaw.as_ref(),
@@ -481,7 +481,8 @@ impl Clusters {
                                 + nalgebra::Vector3::from_column_slice(&carried[3 * v..3 * v + 3])
                         })
                         .collect();
-                    let Ok(fit) = crate::rig::jaw::fit_rigid(&from, &to, &Point3::origin()) else {
+                    let Ok(fit) = super::attachment::RigidFit::fit(&from, &to, &Point3::origin())
+                    else {
                         continue;
                     };
                     fitted = fit;

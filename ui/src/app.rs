@@ -82,7 +82,7 @@ impl EditorApp {
 
     fn submit(&mut self, requests: &[Request]) {
         if let Err(e) = self.session.submit(requests) {
-            self.error = Some(e);
+            self.error = Some(e.to_string());
         } else {
             self.error = None;
         }

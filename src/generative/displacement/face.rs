@@ -7,7 +7,7 @@ use faer::Mat;
 use nalgebra::Point3;
 
 use super::DisplacementNets;
-use crate::drive::Codes;
+use crate::drive::{Codes, DriveError};
 use crate::generative::GenerativeError;
 use crate::generative::face::FaceWarp;
 use crate::mapping::Mapping;
@@ -56,7 +56,7 @@ impl DisplacementFace {
     /// `x = X + R_φᵀ N_D(φ̂(X), tanh z)` for every simulation vertex, and the jaw `N_B(tanh z)`.
     /// Fails on invalid codes or a non-finite output.
     pub fn pose(&self, codes: &Codes) -> Result<DisplacedPose, GenerativeError> {
-        codes.validate()?;
+        codes.validate().map_err(DriveError::from)?;
         let u = self.nets.modulation(std::slice::from_ref(codes))?;
         let u: Vec<f64> = (0..u.ncols()).map(|k| u[(0, k)]).collect();
         let d = self

@@ -11,7 +11,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
-use super::face::FaceContact;
+use crate::contact::face::FaceContact;
 use crate::model::FaceModel;
 use crate::sim::{
     BonePose, RigidMotion, SimError, SimState, Simulator, SolveSettings, SolveStats, SymTensor,
