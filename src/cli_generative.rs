@@ -23,6 +23,7 @@ use facesim::generative::{
 use facesim::rig::FaceRig;
 use facesim::sample::Sample;
 use facesim::stats::median;
+use facesim::table::Table;
 
 /// What `facesim train` trains.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
@@ -601,10 +602,17 @@ pub fn bench(a: &BenchArgs) -> Result<()> {
         Some(p) => GenerativeNets::load(p).with_context(|| format!("loading {}", p.display()))?,
         None => GenerativeNets::new(Default::default(), canonical_frame(&sample)?, 1)?,
     });
-    println!(
-        "| face | elements | N_A, cached first layer (median ms) | N_A, no cache (median ms) | actuate: codes → tensors + jaw (median ms) |"
+    let table = Table::new(
+        &[
+            "face",
+            "elements",
+            "N_A, cached first layer (median ms)",
+            "N_A, no cache (median ms)",
+            "actuate: codes → tensors + jaw (median ms)",
+        ],
+        "lrrrr",
     );
-    println!("|---|---:|---:|---:|---:|");
+    print!("{}", table.head());
     let codes = facesim::drive::Codes {
         expression: facesim::rig::ExpressionCode::single("jawOpen", 0.6).expect("a code shape"),
         style: Default::default(),
@@ -637,13 +645,15 @@ pub fn bench(a: &BenchArgs) -> Result<()> {
             actuate.push(t.elapsed().as_secs_f64() * 1e3);
             std::hint::black_box(act);
         }
-        println!(
-            "| {} | {} | {:.2} | {:.2} | {:.2} |",
-            f.name,
-            g.element_count(),
-            median(&cached),
-            median(&full),
-            median(&actuate)
+        print!(
+            "{}",
+            table.line([
+                f.name.clone(),
+                g.element_count().to_string(),
+                format!("{:.2}", median(&cached)),
+                format!("{:.2}", median(&full)),
+                format!("{:.2}", median(&actuate)),
+            ])
         );
     }
     Ok(())

@@ -11,6 +11,7 @@ use facesim::mapping::{
     stats::{BinRange, heatmap_csv, histogram, summary_csv},
 };
 use facesim::model::FaceModel;
+use facesim::table::Table;
 
 #[derive(clap::Args)]
 pub struct TrainArgs {
@@ -120,10 +121,18 @@ pub fn train_mapping(a: &TrainArgs) -> Result<()> {
         ..TrainConfig::default()
     };
     config.architecture.width = a.width;
-    println!(
-        "| face | correspondences | elastic points | vertex RMS (mm) | elastic ‖J−R‖² | seconds |"
+    let table = Table::new(
+        &[
+            "face",
+            "correspondences",
+            "elastic points",
+            "vertex RMS (mm)",
+            "elastic ‖J−R‖²",
+            "seconds",
+        ],
+        "lrrrrr",
     );
-    println!("|---|---:|---:|---:|---:|---:|");
+    print!("{}", table.head());
     for name in &names {
         let face = load_face(&a.faces, name)?;
         let bar = indicatif::ProgressBar::new(config.iterations);
@@ -156,12 +165,16 @@ pub fn train_mapping(a: &TrainArgs) -> Result<()> {
             &mapping::loss_csv(&rows),
         )?;
         let r = mapping.record.as_ref().expect("trained");
-        println!(
-            "| {name} | {} | {} | {:.3} | {:.5} | {seconds:.0} |",
-            r.surface_points,
-            r.elastic_points,
-            r.final_vertex_mse_mm2.sqrt(),
-            r.final_elastic
+        print!(
+            "{}",
+            table.line([
+                name.to_string(),
+                r.surface_points.to_string(),
+                r.elastic_points.to_string(),
+                format!("{:.3}", r.final_vertex_mse_mm2.sqrt()),
+                format!("{:.5}", r.final_elastic),
+                format!("{seconds:.0}"),
+            ])
         );
     }
     Ok(())
@@ -240,49 +253,67 @@ pub fn stats(a: &StatsArgs) -> Result<()> {
     heatmap_figure(&rows, &panels)
         .write_png(&png)
         .with_context(|| format!("writing {}", png.display()))?;
-    println!(
-        "| face | interior points | surface points | det min / median / max | σmax/σmin median / p95 | vertex error mean / max (mm) |"
+    let mut table = Table::new(
+        &[
+            "face",
+            "interior points",
+            "surface points",
+            "det min / median / max",
+            "σmax/σmin median / p95",
+            "vertex error mean / max (mm)",
+        ],
+        "lrrlll",
     );
-    println!("|---|---:|---:|---|---|---|");
     for m in &summaries {
-        println!(
-            "| {} | {} | {} | {:.3} / {:.3} / {:.3} | {:.3} / {:.3} | {:.3} / {:.3} |",
-            m.name,
-            m.interior_points,
-            m.surface_points,
-            m.det_min,
-            m.det_median,
-            m.det_max,
-            m.condition_median,
-            m.condition_p95,
-            m.vertex_error_mean_mm,
-            m.vertex_error_max_mm
-        );
+        table.row([
+            m.name.clone(),
+            m.interior_points.to_string(),
+            m.surface_points.to_string(),
+            format!("{:.3} / {:.3} / {:.3}", m.det_min, m.det_median, m.det_max),
+            format!("{:.3} / {:.3}", m.condition_median, m.condition_p95),
+            format!(
+                "{:.3} / {:.3}",
+                m.vertex_error_mean_mm, m.vertex_error_max_mm
+            ),
+        ]);
     }
+    print!("{table}");
     if a.warp {
         println!();
-        println!(
-            "| face | actuated elements | direction turn median / p95 / max (°) | max displacement warp / naive (mm) | warp − naive mean / max (mm) | rotated {}°: warp / naive off (mm) | identity actuations: max displacement (mm) |",
-            a.warp_rotation
+        let rotated = format!("rotated {}°: warp / naive off (mm)", a.warp_rotation);
+        let mut table = Table::new(
+            &[
+                "face",
+                "actuated elements",
+                "direction turn median / p95 / max (°)",
+                "max displacement warp / naive (mm)",
+                "warp − naive mean / max (mm)",
+                &rotated,
+                "identity actuations: max displacement (mm)",
+            ],
+            "lrllllr",
         );
-        println!("|---|---:|---|---|---|---|---:|");
         for c in &comparisons {
-            println!(
-                "| {} | {} | {:.2} / {:.2} / {:.2} | {:.3} / {:.3} | {:.3} / {:.3} | {:.4} / {:.3} | {:.1e} |",
-                c.face,
-                c.actuated_elements,
-                c.angle_median_deg,
-                c.angle_p95_deg,
-                c.angle_max_deg,
-                c.warp_max_displacement_mm,
-                c.naive_max_displacement_mm,
-                c.difference_mean_mm,
-                c.difference_max_mm,
-                c.warp_equivariance_max_mm,
-                c.naive_equivariance_max_mm,
-                c.identity_actuation_max_displacement_mm
-            );
+            table.row([
+                c.face.clone(),
+                c.actuated_elements.to_string(),
+                format!(
+                    "{:.2} / {:.2} / {:.2}",
+                    c.angle_median_deg, c.angle_p95_deg, c.angle_max_deg
+                ),
+                format!(
+                    "{:.3} / {:.3}",
+                    c.warp_max_displacement_mm, c.naive_max_displacement_mm
+                ),
+                format!("{:.3} / {:.3}", c.difference_mean_mm, c.difference_max_mm),
+                format!(
+                    "{:.4} / {:.3}",
+                    c.warp_equivariance_max_mm, c.naive_equivariance_max_mm
+                ),
+                format!("{:.1e}", c.identity_actuation_max_displacement_mm),
+            ]);
         }
+        print!("{table}");
         write(
             &a.out.join("warp-comparison.json"),
             &serde_json::to_string_pretty(&comparisons)?,

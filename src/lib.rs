@@ -22,3 +22,4 @@ pub mod scene;
 pub mod session;
 pub mod sim;
 pub mod stats;
+pub mod table;

@@ -4,6 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
+use facesim::table::Table;
 
 mod cli_bench;
 mod cli_generative;
@@ -450,10 +451,17 @@ fn sample(rig_dir: &std::path::Path, out: &std::path::Path, identities: &[usize]
     })
     .with_context(|| format!("building the sample in {}", out.display()))?;
     bar.finish_and_clear();
-    println!(
-        "| face | elements | basis skin error (RMS / max, mm) | jaw fit RMS (mm) | clamped elements |"
+    let table = Table::new(
+        &[
+            "face",
+            "elements",
+            "basis skin error (RMS / max, mm)",
+            "jaw fit RMS (mm)",
+            "clamped elements",
+        ],
+        "lrlrr",
     );
-    println!("|---|---:|---|---:|---:|");
+    print!("{}", table.head());
     for entry in &manifest.faces {
         let model = facesim::model::FaceModel::load(&out.join(&entry.face))?;
         let basis = facesim::drive::basis::ActuationBasis::load(&out.join(&entry.basis))?;
@@ -461,13 +469,15 @@ fn sample(rig_dir: &std::path::Path, out: &std::path::Path, identities: &[usize]
         let max = basis.fits.iter().map(|f| f.skin_max).fold(0.0, f64::max);
         let jaw = basis.fits.iter().map(|f| f.jaw_rms).fold(0.0, f64::max);
         let clamped: usize = basis.fits.iter().map(|f| f.clamped).sum();
-        println!(
-            "| {} | {} | ≤ {:.3} / {:.3} | ≤ {:.3} | {clamped} |",
-            entry.name,
-            model.mesh.element_count(),
-            10.0 * rms,
-            10.0 * max,
-            10.0 * jaw
+        print!(
+            "{}",
+            table.line([
+                entry.name.clone(),
+                model.mesh.element_count().to_string(),
+                format!("≤ {:.3} / {:.3}", 10.0 * rms, 10.0 * max),
+                format!("≤ {:.3}", 10.0 * jaw),
+                clamped.to_string(),
+            ])
         );
     }
     eprintln!(
@@ -509,10 +519,21 @@ fn import(
         }
     }
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    println!(
-        "| model | elements | vertices | min dihedral | min quality | thickness (min/median/max cm) | skull/jaw attached | repaired (pairs → 0, vertices, max cm) | seconds |"
+    let table = Table::new(
+        &[
+            "model",
+            "elements",
+            "vertices",
+            "min dihedral",
+            "min quality",
+            "thickness (min/median/max cm)",
+            "skull/jaw attached",
+            "repaired (pairs → 0, vertices, max cm)",
+            "seconds",
+        ],
+        "lrrrrlllr",
     );
-    println!("|---|---:|---:|---:|---:|---|---|---|---:|");
+    print!("{}", table.head());
     for lod in lods {
         for &identity in &chosen {
             let label = identity.map_or("neutral".to_string(), |i| format!("identity{i:03}"));
@@ -524,23 +545,28 @@ fn import(
             let path = out.join(format!("{label}-{}.face", lod.name()));
             model.save(&path)?;
             let (q, r) = (&model.quality, &model.report);
-            println!(
-                "| {label}-{} | {} | {} | {:.1}° | {:.3} | {:.2}/{:.2}/{:.2} | {}/{} | {} → {}, {}, {:.3} | {:.1} |",
-                lod.name(),
-                q.elements,
-                q.vertices,
-                q.min_dihedral_deg,
-                q.min_shape_quality,
-                r.thickness_min,
-                r.thickness_median,
-                r.thickness_max,
-                r.skull_attached,
-                r.jaw_attached,
-                r.intersections_before_repair,
-                r.intersections_after_repair,
-                r.repaired_vertices,
-                r.max_repair_displacement,
-                r.seconds
+            print!(
+                "{}",
+                table.line([
+                    format!("{label}-{}", lod.name()),
+                    q.elements.to_string(),
+                    q.vertices.to_string(),
+                    format!("{:.1}°", q.min_dihedral_deg),
+                    format!("{:.3}", q.min_shape_quality),
+                    format!(
+                        "{:.2}/{:.2}/{:.2}",
+                        r.thickness_min, r.thickness_median, r.thickness_max
+                    ),
+                    format!("{}/{}", r.skull_attached, r.jaw_attached),
+                    format!(
+                        "{} → {}, {}, {:.3}",
+                        r.intersections_before_repair,
+                        r.intersections_after_repair,
+                        r.repaired_vertices,
+                        r.max_repair_displacement
+                    ),
+                    format!("{:.1}", r.seconds),
+                ])
             );
         }
     }

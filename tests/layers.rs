@@ -12,7 +12,7 @@ use std::process::Command;
 
 /// The layers, lowest first; a module imports only from lower layers.
 const LAYERS: &[&[&str]] = &[
-    &["geometry", "nn", "plot", "stats"],
+    &["geometry", "nn", "plot", "stats", "table"],
     &["contact"],
     &["sim"],
     &["scene", "rig"],

@@ -22,6 +22,7 @@ use crate::model::FaceModel;
 use crate::sim::{
     ContactGate, ContactStep, Quality, SimError, Simulator, SolveSettings, SolveStats,
 };
+use crate::table::Table;
 
 /// The frame sequences the benchmark drives.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
@@ -266,35 +267,58 @@ pub fn contact_label(r: &ContactBenchRow) -> &'static str {
 
 /// The rows as a Markdown table.
 pub fn table(rows: &[ContactBenchRow]) -> String {
-    let mut out = String::from(
-        "| sequence | preset | contact | step | frames ok | skipped | refused | gate ms | converged | frame ms | iterations | broad phase ms | barrier ms | filter ms | linear ms | staging ms | check ms | active pairs | lists built | pairs per step |\n|---|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+    let mut t = Table::new(
+        &[
+            "sequence",
+            "preset",
+            "contact",
+            "step",
+            "frames ok",
+            "skipped",
+            "refused",
+            "gate ms",
+            "converged",
+            "frame ms",
+            "iterations",
+            "broad phase ms",
+            "barrier ms",
+            "filter ms",
+            "linear ms",
+            "staging ms",
+            "check ms",
+            "active pairs",
+            "lists built",
+            "pairs per step",
+        ],
+        "llllrrrrrrrrrrrrrrrr",
     );
+    let ms = |v: f64| format!("{v:.1}");
+    let count = |v: f64| format!("{v:.0}");
     for r in rows {
-        out += &format!(
-            "| {} | {} | {} | {} | {}/{} | {} | {} | {:.1} | {} | {:.1} | {:.0} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.0} | {:.0} | {:.0} |\n",
-            r.sequence.name(),
-            r.quality,
-            contact_label(r),
+        t.row([
+            r.sequence.name().to_string(),
+            r.quality.to_string(),
+            contact_label(r).to_string(),
             r.step.map_or("-".to_string(), |s| format!("{s:?}")),
-            r.frames - r.failures,
-            r.frames,
-            r.skipped,
-            r.refused,
-            r.gate_ms,
-            r.converged,
-            r.frame_ms,
-            r.iterations,
-            r.broad_phase_ms,
-            r.barrier_ms,
-            r.filter_ms,
-            r.linear_ms,
-            r.staging_ms,
-            r.check_ms,
-            r.active_pairs,
-            r.candidate_builds,
-            r.near_pairs,
-        );
+            format!("{}/{}", r.frames - r.failures, r.frames),
+            r.skipped.to_string(),
+            r.refused.to_string(),
+            ms(r.gate_ms),
+            r.converged.to_string(),
+            ms(r.frame_ms),
+            count(r.iterations),
+            ms(r.broad_phase_ms),
+            ms(r.barrier_ms),
+            ms(r.filter_ms),
+            ms(r.linear_ms),
+            ms(r.staging_ms),
+            ms(r.check_ms),
+            count(r.active_pairs),
+            count(r.candidate_builds),
+            count(r.near_pairs),
+        ]);
     }
+    let mut out = t.to_string();
     for sequence in [Sequence::Drag, Sequence::Subtle] {
         for q in Quality::ALL {
             let find = |c: bool, gate: Option<ContactGate>| {

@@ -12,6 +12,7 @@ use serde::Serialize;
 use crate::rig::ExpressionCode;
 use crate::session::{Request, Session, SessionError, SessionFace};
 use crate::sim::Quality;
+use crate::table::Table;
 
 use super::percentile;
 
@@ -94,23 +95,32 @@ pub fn bench_latency(
 
 /// A markdown table of `rows`.
 pub fn table(rows: &[LatencyRow]) -> String {
-    let mut s = String::from(
-        "| face | preset | contact | samples | median ms | p95 ms | median iterations | failed |\n|---|---|---|---:|---:|---:|---:|---:|\n",
+    let mut t = Table::new(
+        &[
+            "face",
+            "preset",
+            "contact",
+            "samples",
+            "median ms",
+            "p95 ms",
+            "median iterations",
+            "failed",
+        ],
+        "lllrrrrr",
     );
     for r in rows {
-        s += &format!(
-            "| {} | {} | {} | {} | {:.1} | {:.1} | {} | {} |\n",
-            r.face,
-            r.quality,
-            if r.contact { "on" } else { "off" },
-            r.samples,
-            r.median_ms,
-            r.p95_ms,
-            r.median_iterations,
-            r.errors
-        );
+        t.row([
+            r.face.clone(),
+            r.quality.to_string(),
+            if r.contact { "on" } else { "off" }.to_string(),
+            r.samples.to_string(),
+            format!("{:.1}", r.median_ms),
+            format!("{:.1}", r.p95_ms),
+            r.median_iterations.to_string(),
+            r.errors.to_string(),
+        ]);
     }
-    s
+    t.to_string()
 }
 
 #[cfg(test)]

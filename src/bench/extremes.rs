@@ -23,6 +23,7 @@ use crate::model::FaceModel;
 use crate::rig::ExpressionCode;
 use crate::rig::style::StyleCode;
 use crate::sim::{SimError, SolveSettings};
+use crate::table::Table;
 
 use super::sequence::solve_codes;
 
@@ -194,26 +195,36 @@ pub fn run(
 
 /// The reports in markdown.
 pub fn table(reports: &[CaseReport]) -> String {
-    let mut s = String::from(
-        "| sequence | frames | converged | unconverged (shown) | inverted | intersecting | other errors | non-finite | max iterations | median ms |\n\
-         |---|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+    let mut t = Table::new(
+        &[
+            "sequence",
+            "frames",
+            "converged",
+            "unconverged (shown)",
+            "inverted",
+            "intersecting",
+            "other errors",
+            "non-finite",
+            "max iterations",
+            "median ms",
+        ],
+        "lrrrrrrrrr",
     );
     for r in reports {
-        s += &format!(
-            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {:.1} |\n",
-            r.name,
-            r.frames,
-            r.converged,
-            r.unconverged,
-            r.inverted,
-            r.intersecting,
-            r.other_errors,
-            r.non_finite,
-            r.max_iterations,
-            r.median_ms
-        );
+        t.row([
+            r.name.clone(),
+            r.frames.to_string(),
+            r.converged.to_string(),
+            r.unconverged.to_string(),
+            r.inverted.to_string(),
+            r.intersecting.to_string(),
+            r.other_errors.to_string(),
+            r.non_finite.to_string(),
+            r.max_iterations.to_string(),
+            format!("{:.1}", r.median_ms),
+        ]);
     }
-    s
+    t.to_string()
 }
 
 #[cfg(test)]

@@ -22,6 +22,7 @@ use crate::session::protocol::{Encoding, Entries, Message, Reply};
 use crate::session::server::{ServerSettings, serve};
 use crate::session::{Request, Session, SessionError, SessionFace, Token};
 use crate::sim::Quality;
+use crate::table::Table;
 
 #[derive(Clone, Debug, Serialize)]
 pub struct RemoteRow {
@@ -160,8 +161,18 @@ pub fn table(rows: &[RemoteRow]) -> String {
         .iter()
         .find(|r| r.transport == "remote json")
         .map_or(f64::NAN, |r| r.median_bytes);
-    let mut s = String::from(
-        "| transport | frames | median bytes/frame | first frame's bytes | max bytes | of JSON's | median ms | p95 ms |\n|---|---:|---:|---:|---:|---:|---:|---:|\n",
+    let mut t = Table::new(
+        &[
+            "transport",
+            "frames",
+            "median bytes/frame",
+            "first frame's bytes",
+            "max bytes",
+            "of JSON's",
+            "median ms",
+            "p95 ms",
+        ],
+        "lrrrrrrr",
     );
     for r in rows {
         let share = if r.median_bytes > 0.0 {
@@ -169,19 +180,18 @@ pub fn table(rows: &[RemoteRow]) -> String {
         } else {
             "–".into()
         };
-        s += &format!(
-            "| {} | {} | {:.0} | {} | {} | {} | {:.1} | {:.1} |\n",
-            r.transport,
-            r.samples,
-            r.median_bytes,
-            r.first_bytes,
-            r.max_bytes,
+        t.row([
+            r.transport.clone(),
+            r.samples.to_string(),
+            format!("{:.0}", r.median_bytes),
+            r.first_bytes.to_string(),
+            r.max_bytes.to_string(),
             share,
-            r.median_ms,
-            r.p95_ms
-        );
+            format!("{:.1}", r.median_ms),
+            format!("{:.1}", r.p95_ms),
+        ]);
     }
-    s
+    t.to_string()
 }
 
 #[cfg(test)]

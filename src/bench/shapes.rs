@@ -21,6 +21,7 @@ use crate::model::audit::CrossingAudit;
 use crate::model::{FaceModel, target};
 use crate::rig::{ExpressionCode, FaceRig, Region};
 use crate::sim::{SimError, SolveSettings, Termination};
+use crate::table::Table;
 
 /// One posed code on one face.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -180,9 +181,24 @@ pub fn measure(
 
 /// The rows as a Markdown table, maxima first.
 pub fn table(rows: &[ShapeRow]) -> String {
-    let mut out = String::from(
-        "| face | code | contact | skin max (mm) | skin p95 | skin mean | worst rig vertex | lining mean (mm) | lining max | crossings | rig's own crossings | converged | iterations | ms |\n\
-         |---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---|---:|---:|\n",
+    let mut t = Table::new(
+        &[
+            "face",
+            "code",
+            "contact",
+            "skin max (mm)",
+            "skin p95",
+            "skin mean",
+            "worst rig vertex",
+            "lining mean (mm)",
+            "lining max",
+            "crossings",
+            "rig's own crossings",
+            "converged",
+            "iterations",
+            "ms",
+        ],
+        "lllrrrrrrrrlrr",
     );
     for r in rows {
         let solve = match (&r.termination, &r.error) {
@@ -191,23 +207,22 @@ pub fn table(rows: &[ShapeRow]) -> String {
             (None, Some(e)) => format!("**failed: {e}**"),
             (None, None) => "?".to_string(),
         };
-        out += &format!(
-            "| {} | {} | {} | {:.2} | {:.2} | {:.2} | {} | {:.2} | {:.2} | {} | {} | {} | {} | {:.0} |\n",
-            r.face,
-            r.code,
-            if r.contact { "on" } else { "off" },
-            r.skin_max_mm,
-            r.skin_p95_mm,
-            r.skin_mean_mm,
-            r.skin_worst_vertex,
-            r.lining_mean_mm,
-            r.lining_max_mm,
-            r.crossings,
-            r.rig_crossings,
+        t.row([
+            r.face.clone(),
+            r.code.clone(),
+            if r.contact { "on" } else { "off" }.to_string(),
+            format!("{:.2}", r.skin_max_mm),
+            format!("{:.2}", r.skin_p95_mm),
+            format!("{:.2}", r.skin_mean_mm),
+            r.skin_worst_vertex.to_string(),
+            format!("{:.2}", r.lining_mean_mm),
+            format!("{:.2}", r.lining_max_mm),
+            r.crossings.to_string(),
+            r.rig_crossings.to_string(),
             solve,
-            r.iterations,
-            r.ms
-        );
+            r.iterations.to_string(),
+            format!("{:.0}", r.ms),
+        ]);
     }
-    out
+    t.to_string()
 }

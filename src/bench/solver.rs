@@ -9,6 +9,7 @@ use super::median;
 use crate::scene::SlabScene;
 use crate::sim::global_matrix::GlobalMatrix;
 use crate::sim::{BonePose, SimConfig, SimError, SimState, Simulator, SolveSettings, SymTensor};
+use crate::table::Table;
 
 /// Contraction of the benchmark's actuation field, and its change for warm-started solves.
 const STRENGTH: f64 = 0.3;
@@ -166,26 +167,35 @@ pub fn bench_size(elements: usize, samples: usize) -> Result<SolverBenchRow, Sim
 
 /// The benchmark as a Markdown table.
 pub fn table(rows: &[SolverBenchRow]) -> String {
-    let mut s = String::from(
-        "| elements | vertices | factor | iteration | floor (solve + local step) | ratio | rest→1e-3 | rest→1e-5 | warm→1e-3 | warm→1e-5 |\n\
-         |---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+    let mut t = Table::new(
+        &[
+            "elements",
+            "vertices",
+            "factor",
+            "iteration",
+            "floor (solve + local step)",
+            "ratio",
+            "rest→1e-3",
+            "rest→1e-5",
+            "warm→1e-3",
+            "warm→1e-5",
+        ],
+        "rrrrrrrrrr",
     );
     let cell = |t: &ToTolerance| format!("{} it, {:.1} ms", t.iterations, t.median_ms);
     for r in rows {
-        s += &format!(
-            "| {} | {} | {:.1} ms | {:.2} ms | {:.2} + {:.2} ms | {:.2} | {} | {} | {} | {} |\n",
-            r.elements,
-            r.vertices,
-            r.factor_ms,
-            r.iteration_ms,
-            r.bare_solve_ms,
-            r.local_sweep_ms,
-            r.floor_ratio,
+        t.row([
+            r.elements.to_string(),
+            r.vertices.to_string(),
+            format!("{:.1} ms", r.factor_ms),
+            format!("{:.2} ms", r.iteration_ms),
+            format!("{:.2} + {:.2} ms", r.bare_solve_ms, r.local_sweep_ms),
+            format!("{:.2}", r.floor_ratio),
             cell(&r.from_rest[0]),
             cell(&r.from_rest[1]),
             cell(&r.warm[0]),
             cell(&r.warm[1]),
-        );
+        ]);
     }
-    s
+    t.to_string()
 }

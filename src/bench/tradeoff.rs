@@ -23,6 +23,7 @@ use crate::plot::Canvas;
 use crate::plot::scatter::{Chart, PALETTE, Series, draw};
 use crate::rig::ExpressionCode;
 use crate::sim::{ContactGate, Quality, SimError, Simulator, SolveSettings};
+use crate::table::Table;
 
 use super::percentile;
 use super::sequence::solve_codes;
@@ -312,31 +313,44 @@ pub fn measure(
 
 /// The trade table in markdown.
 pub fn table(rows: &[TradeRow]) -> String {
-    let mut s = String::from(
-        "| mesh | elements | preset | contact | frames ok | contact skipped | converged | median ms | p95 ms | iterations | mean error mm | max error mm | crossing frames | max volume change |\n\
-         |---|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+    let mut t = Table::new(
+        &[
+            "mesh",
+            "elements",
+            "preset",
+            "contact",
+            "frames ok",
+            "contact skipped",
+            "converged",
+            "median ms",
+            "p95 ms",
+            "iterations",
+            "mean error mm",
+            "max error mm",
+            "crossing frames",
+            "max volume change",
+        ],
+        "lrllrrrrrrrrrr",
     );
     for r in rows {
-        s += &format!(
-            "| {} | {} | {} | {} | {}/{} | {} | {} | {:.1} | {:.1} | {} | {:.3} | {:.3} | {} | {:.2}% |\n",
-            r.lod.name(),
-            r.elements,
-            r.quality.name(),
-            contact_label(r.gate),
-            r.frames - r.failed,
-            r.frames,
-            r.skipped,
-            r.converged,
-            r.median_ms,
-            r.p95_ms,
-            r.median_iterations,
-            r.mean_error_mm,
-            r.max_error_mm,
-            r.crossing_frames,
-            100.0 * r.max_volume_change,
-        );
+        t.row([
+            r.lod.name().to_string(),
+            r.elements.to_string(),
+            r.quality.name().to_string(),
+            contact_label(r.gate).to_string(),
+            format!("{}/{}", r.frames - r.failed, r.frames),
+            r.skipped.to_string(),
+            r.converged.to_string(),
+            format!("{:.1}", r.median_ms),
+            format!("{:.1}", r.p95_ms),
+            r.median_iterations.to_string(),
+            format!("{:.3}", r.mean_error_mm),
+            format!("{:.3}", r.max_error_mm),
+            r.crossing_frames.to_string(),
+            format!("{:.2}%", 100.0 * r.max_volume_change),
+        ]);
     }
-    s
+    t.to_string()
 }
 
 /// Time per frame against mean vertex error, one line per mesh and contact setting through

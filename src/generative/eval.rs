@@ -38,6 +38,7 @@ use crate::mapping::warp::quantile;
 use crate::model::FaceModel;
 use crate::rig::{ExpressionCode, FaceRig, StyleCode};
 use crate::sim::{BonePose, Quality, Simulator};
+use crate::table::Table;
 
 /// Millimetres per model unit (cm).
 const MM: f64 = 10.0;
@@ -169,17 +170,28 @@ impl EvalReport {
     }
 
     fn markdown(rows: &[EvalRow]) -> String {
-        let mut s = String::from(
-            "| face | model | poses solved | vertex error max (mm) | worst (rig vertex, code) | p95 (mm) | mean (mm) | mean \\|det F − 1\\| | volume change mean / max (%) | inverted elements | poses with lip crossings (crossings) |\n|---|---|---:|---:|---|---:|---:|---:|---:|---:|---:|\n",
+        let mut t = Table::new(
+            &[
+                "face",
+                "model",
+                "poses solved",
+                "vertex error max (mm)",
+                "worst (rig vertex, code)",
+                "p95 (mm)",
+                "mean (mm)",
+                "mean \\|det F − 1\\|",
+                "volume change mean / max (%)",
+                "inverted elements",
+                "poses with lip crossings (crossings)",
+            ],
+            "llrrlrrrrrr",
         );
         let pct = |v: Option<f64>| opt(v.map(|v| 100.0 * v), 2);
         for r in rows {
-            s.push_str(&format!(
-                "| {} | {} | {}/{} | {} | {} | {} | {} | {} | {} / {} | {} | {} ({}) |\n",
-                r.face,
-                r.model,
-                r.poses - r.failed,
-                r.poses,
+            t.row([
+                r.face.clone(),
+                r.model.clone(),
+                format!("{}/{}", r.poses - r.failed, r.poses),
                 opt(r.max_mm, 3),
                 match (r.worst_vertex, r.worst_code) {
                     (Some(v), Some(c)) => format!("{v}, {c}"),
@@ -188,27 +200,31 @@ impl EvalReport {
                 opt(r.p95_mm, 3),
                 opt(r.mean_mm, 3),
                 opt(r.mean_abs_det_change, 4),
-                pct(r.mean_abs_volume_change),
-                pct(r.max_abs_volume_change),
-                r.inverted,
-                r.crossing_poses,
-                r.crossings
-            ));
+                format!(
+                    "{} / {}",
+                    pct(r.mean_abs_volume_change),
+                    pct(r.max_abs_volume_change)
+                ),
+                r.inverted.to_string(),
+                format!("{} ({})", r.crossing_poses, r.crossings),
+            ]);
         }
-        s
+        t.to_string()
     }
 
     /// The rig targets' crossings as Markdown.
     pub fn target_table(&self) -> String {
-        let mut s =
-            String::from("| face | rig targets with lip crossings (crossings) |\n|---|---:|\n");
-        for t in &self.targets {
-            s.push_str(&format!(
-                "| {} | {}/{} ({}) |\n",
-                t.face, t.crossing_poses, t.poses, t.crossings
-            ));
+        let mut t = Table::new(
+            &["face", "rig targets with lip crossings (crossings)"],
+            "lr",
+        );
+        for r in &self.targets {
+            t.row([
+                r.face.clone(),
+                format!("{}/{} ({})", r.crossing_poses, r.poses, r.crossings),
+            ]);
         }
-        s
+        t.to_string()
     }
 
     /// The style-transfer rows as Markdown (empty without any).
@@ -216,22 +232,30 @@ impl EvalReport {
         if self.style_rows.is_empty() {
             return String::new();
         }
-        let mut s = String::from(
-            "| face | model | codes posed in both styles | own-style error (mm) | rig's style change (mm) | style-change error (mm) | style kept |\n|---|---|---:|---:|---:|---:|---:|\n",
+        let mut t = Table::new(
+            &[
+                "face",
+                "model",
+                "codes posed in both styles",
+                "own-style error (mm)",
+                "rig's style change (mm)",
+                "style-change error (mm)",
+                "style kept",
+            ],
+            "llrrrrr",
         );
         for r in &self.style_rows {
-            s.push_str(&format!(
-                "| {} | {} | {} | {} | {} | {} | {} |\n",
-                r.face,
-                r.model,
-                r.poses,
+            t.row([
+                r.face.clone(),
+                r.model.clone(),
+                r.poses.to_string(),
                 opt(r.own_style_mean_mm, 3),
                 opt(r.rig_style_change_mm, 3),
                 opt(r.style_change_error_mm, 3),
-                opt(r.style_kept, 3)
-            ));
+                opt(r.style_kept, 3),
+            ]);
         }
-        s
+        t.to_string()
     }
 
     /// The rows as CSV.
