@@ -173,9 +173,9 @@ pub fn run(
                     }
                 }
                 Err(e) => {
-                    if e.contains("inverted element") {
+                    if e.inverted() {
                         r.inverted += 1;
-                    } else if e.contains("contact surfaces intersect") {
+                    } else if e.intersecting() {
                         r.intersecting += 1;
                     } else {
                         r.other_errors += 1;

@@ -4,8 +4,29 @@
 
 use std::time::Instant;
 
-use crate::drive::{ActuationModel, Codes};
-use crate::sim::{BonePose, SimState, Simulator, SolveSettings, SolveStats};
+use crate::drive::{ActuationModel, Codes, DriveError};
+use crate::sim::{BonePose, SimError, SimState, Simulator, SolveSettings, SolveStats};
+
+/// Why a frame failed.
+#[derive(Debug, thiserror::Error)]
+pub enum FrameFailure {
+    #[error(transparent)]
+    Actuation(#[from] DriveError),
+    #[error(transparent)]
+    Solve(#[from] SimError),
+}
+
+impl FrameFailure {
+    /// The solve ended with inverted elements.
+    pub fn inverted(&self) -> bool {
+        matches!(self, FrameFailure::Solve(SimError::Inverted { .. }))
+    }
+
+    /// The contact surfaces crossed after the solve.
+    pub fn intersecting(&self) -> bool {
+        matches!(self, FrameFailure::Solve(SimError::Intersecting { .. }))
+    }
+}
 
 /// One frame's outcome.
 pub struct FrameResult {
@@ -14,7 +35,7 @@ pub struct FrameResult {
     pub ms: f64,
     pub bones: BonePose,
     /// The solve's stats, or why the frame failed (actuation or solve error).
-    pub outcome: Result<SolveStats, String>,
+    pub outcome: Result<SolveStats, FrameFailure>,
     /// Every position of the state the solve left is finite (checked on failures too).
     pub finite: bool,
 }
@@ -35,11 +56,10 @@ pub fn solve_codes(
         let mut bones = BonePose::default();
         let outcome = actuation
             .actuate(c)
-            .map_err(|e| e.to_string())
+            .map_err(FrameFailure::from)
             .and_then(|a| {
                 bones = a.bones();
-                sim.solve(&a.tensors, &bones, &mut state, settings)
-                    .map_err(|e| e.to_string())
+                Ok(sim.solve(&a.tensors, &bones, &mut state, settings)?)
             });
         let result = FrameResult {
             index,

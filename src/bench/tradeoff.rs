@@ -151,7 +151,7 @@ pub fn run(
                 out.frames.push(None);
             }
             Err(e) => {
-                out.errors.push(e.clone());
+                out.errors.push(e.to_string());
                 out.frames.push(None);
             }
         }
