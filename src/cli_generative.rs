@@ -12,7 +12,7 @@ use facesim::generative::data::FacePoses;
 use facesim::generative::eval::{EvalFace, EvalModel};
 use facesim::generative::face::FaceWarp;
 use facesim::generative::run::{
-    self, DISPLACEMENT_FILES, RunError, RunEvent, RunPlan, STAGE1_FILES, STAGE2_FILES,
+    self, DISPLACEMENT_FILES, RunError, RunEvent, RunPlan, STAGE1_FILES, STAGE2_FILES, write_atomic,
 };
 use facesim::generative::transfer::NearestElementTransfer;
 use facesim::generative::{
@@ -146,12 +146,6 @@ fn canonical_frame(sample: &Sample) -> Result<CanonicalFrame> {
         .find(|f| f.identity.is_none())
         .context("the sample has no template (canonical) face")?;
     Ok(CanonicalFrame::of(&canonical.model))
-}
-
-fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    let tmp = path.with_extension("tmp");
-    std::fs::write(&tmp, bytes).with_context(|| format!("writing {}", tmp.display()))?;
-    std::fs::rename(&tmp, path).with_context(|| format!("renaming to {}", path.display()))
 }
 
 /// The stage-1 poses of every sample face: cached ones, the rest fitted (and cached); `rig`

@@ -52,10 +52,6 @@ impl Table {
         assert_eq!(cells.len(), self.header.len(), "one cell per column");
         format!("| {} |\n", cells.join(" | "))
     }
-
-    pub fn is_empty(&self) -> bool {
-        self.rows.is_empty()
-    }
 }
 
 impl fmt::Display for Table {

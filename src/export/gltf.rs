@@ -23,6 +23,7 @@ use std::path::{Path, PathBuf};
 use serde_json::{Value, json};
 
 use super::{ExportError, ExportMesh, Format, FrameSink, Out, check_sizes};
+use crate::geometry::bounds_f32 as bounds;
 use crate::session::Frame;
 
 /// Centimetres → metres.
@@ -34,17 +35,6 @@ const FLOAT: u32 = 5126;
 const UNSIGNED_INT: u32 = 5125;
 
 type Bounds = [[f32; 3]; 2];
-
-fn bounds(values: impl Iterator<Item = [f32; 3]>) -> Bounds {
-    let mut b = [[f32::INFINITY; 3], [f32::NEG_INFINITY; 3]];
-    for v in values {
-        for c in 0..3 {
-            b[0][c] = b[0][c].min(v[c]);
-            b[1][c] = b[1][c].max(v[c]);
-        }
-    }
-    b
-}
 
 /// Exactly the `f32` value as a JSON number (so the validator's min/max comparison is exact).
 fn num3(v: [f32; 3]) -> Value {

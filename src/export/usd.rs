@@ -81,15 +81,9 @@ fn array(values: &[[f32; 3]], decimals: usize) -> String {
     s
 }
 
+/// A USD `extent`: the points' bounds.
 fn extent(points: &[[f32; 3]]) -> [[f32; 3]; 2] {
-    let mut e = [[f32::INFINITY; 3], [f32::NEG_INFINITY; 3]];
-    for p in points {
-        for c in 0..3 {
-            e[0][c] = e[0][c].min(p[c]);
-            e[1][c] = e[1][c].max(p[c]);
-        }
-    }
-    e
+    crate::geometry::bounds_f32(points.iter().copied())
 }
 
 const POINT_DECIMALS: usize = 5;

@@ -79,6 +79,11 @@ impl ServerSettings {
         ServerSettings { tls, ..self }
     }
 
+    /// The browser page's scheme: `https` inside TLS, else `http`.
+    pub fn page_scheme(&self) -> &'static str {
+        if self.tls.is_some() { "https" } else { "http" }
+    }
+
     /// Settings for listening on `addrs`: the given token, or a generated one when all are
     /// loopback (module doc). The flag says whether the token was generated (and must be
     /// shown).
@@ -275,9 +280,9 @@ impl Client {
         }
     }
 
-    /// Whether the server speaks TLS.
-    pub(crate) fn is_tls(&self) -> bool {
-        self.settings.tls.is_some()
+    /// The browser page's scheme ([`ServerSettings::page_scheme`]).
+    pub(crate) fn page_scheme(&self) -> &'static str {
+        self.settings.page_scheme()
     }
 
     /// Authenticates the client on `channel`, then answers its requests until it

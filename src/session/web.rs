@@ -8,10 +8,11 @@
 //!   sends it in its first message.
 //! - `GET /ws` upgrades to a WebSocket. Each text message is one request or reply of the
 //!   protocol; a `frame_data` reply is followed by one binary message, its payload.
-//! - Drive-by protection: the upgrade needs an `Origin` that is this page's own
-//!   (`http://`, or `https://` inside TLS, + the `Host` asked for), and on a loopback listener a `Host` that names
-//!   loopback (`127.0.0.1`, `localhost`, `[::1]` at this port), so a page of another site, or
-//!   one reached through a rebound DNS name, cannot open the socket even before the token.
+//! - Drive-by protection: the upgrade needs an `Origin` that is this page's own (`http://`,
+//!   or `https://` inside TLS, + the `Host` asked for), and on a loopback listener a `Host`
+//!   that names loopback (`127.0.0.1`, `localhost`, `[::1]` at this port), so a page of
+//!   another site, or one reached through a rebound DNS name, cannot open the socket even
+//!   before the token.
 //! - Messages are at most [`MAX_LINE`] bytes, and the timeouts, token and client limits are
 //!   the TCP server's.
 
@@ -120,7 +121,7 @@ fn serve_http(stream: TcpStream, local: SocketAddr, client: &Client) -> std::io:
     let head = read_head(&mut *stream)?;
     let origin = Origin {
         local,
-        scheme: if client.is_tls() { "https" } else { "http" },
+        scheme: client.page_scheme(),
     };
     match head.path.as_deref() {
         Some("/ws") => {

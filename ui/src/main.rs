@@ -167,7 +167,7 @@ fn main() -> Result<()> {
                 } else {
                     "#token=<your token>".into()
                 };
-                let scheme = if secure { "https" } else { "http" };
+                let scheme = settings.page_scheme();
                 eprintln!("browser editor: {scheme}://{web_addr}/{fragment}");
                 let (session, settings) = (session.clone(), settings.clone());
                 std::thread::spawn(move || {

@@ -92,15 +92,7 @@ const VIEWER_FOV_Y_DEG: f32 = 55.0;
 /// the centre's depth (d = ½h·1.1 / tan(½·fov)), and the grid as a floor under the chin
 /// (rerun's planes are n·p − d = 0).
 fn framing(rest: &[[f32; 3]]) -> (EyeControls3D, LineGrid3D) {
-    let (lo, hi) = rest.iter().fold(
-        ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]),
-        |(lo, hi), p| {
-            (
-                std::array::from_fn(|k| lo[k].min(p[k])),
-                std::array::from_fn(|k| hi[k].max(p[k])),
-            )
-        },
-    );
+    let [lo, hi] = facesim::geometry::bounds_f32(rest.iter().copied());
     let centre: [f32; 3] = std::array::from_fn(|k| 0.5 * (lo[k] + hi[k]));
     let half_height = 0.5 * (hi[1] - lo[1]);
     let distance = half_height * 1.1 / (0.5 * VIEWER_FOV_Y_DEG.to_radians()).tan();
