@@ -1,13 +1,23 @@
-//! Probe (issue 21): jawOpen at 1 in each sample face's default style, posed by the basis's
-//! log-Euclidean blend and by an actuation fitted to that styled target directly (the
-//! per-code upper bound), both measured against the rig as `bench shapes` does.
+//! Probe (issue 21): a slider at weight 1 (or `WEIGHT`) in each sample face's default style,
+//! posed (final, contact off, from rest) by four actuations and measured against the rig as
+//! `bench shapes` does:
+//! - the basis's log-Euclidean blend `exp(Σ wₖ·log Aₖ)` of shapes fitted at weight 1;
+//! - a two-weight blend: shapes the style pushes past 1 interpolate `log A` between their
+//!   fits at 1 and at `W2` (default 1.5) instead of extrapolating the fit at 1;
+//! - jaw correctives: the blend plus `w_jawOpen·wₖ·(log A(jawOpen, k) − log A_jawOpen − log Aₖ)`
+//!   for every shape `k` posed with jawOpen, each pair fitted at weights (1, 1);
+//! - an actuation fitted to the styled target directly (the per-code upper bound).
+//!
+//! `cargo run --release -p facesim --example styled_fit [SHAPE]`, with `FACE=NAME` to measure
+//! one face.
 use facesim::bench::shapes::{MeasuredFace, measure};
 use facesim::drive::{Actuation, ActuationModel, Codes, DriveError};
 use facesim::model::fit::{ActuationFitter, FitSettings};
-use facesim::model::target;
+use facesim::model::{shape_target, target};
 use facesim::rig::{ExpressionCode, FaceRig};
 use facesim::sample::{SAMPLE_DIR, Sample};
-use facesim::sim::{Quality, SolveSettings};
+use facesim::sim::{Quality, RigidMotion, SolveSettings, SymTensor};
+use nalgebra::{Matrix3, SymmetricEigen};
 
 struct Fixed(Actuation, usize);
 impl ActuationModel for Fixed {
@@ -18,34 +28,164 @@ impl ActuationModel for Fixed {
         Ok(self.0.clone())
     }
 }
+fn log_m(t: &SymTensor) -> Matrix3<f64> {
+    let e = SymmetricEigen::new(t.to_matrix());
+    e.eigenvectors
+        * Matrix3::from_diagonal(&e.eigenvalues.map(f64::ln))
+        * e.eigenvectors.transpose()
+}
+fn exp_m(m: &Matrix3<f64>) -> SymTensor {
+    let e = SymmetricEigen::new(*m);
+    SymTensor::from_matrix(
+        &(e.eigenvectors
+            * Matrix3::from_diagonal(&e.eigenvalues.map(f64::exp))
+            * e.eigenvectors.transpose()),
+    )
+}
 
 fn main() {
     let rig = FaceRig::load(facesim::rig::DEFAULT_RIG_DIR).unwrap();
     let sample = Sample::load(SAMPLE_DIR).unwrap();
     let shape = std::env::args().nth(1).unwrap_or("jawOpen".into());
-    let code = vec![(shape.clone(), ExpressionCode::single(&shape, 1.0).unwrap())];
+    let w2: f64 = std::env::var("W2")
+        .ok()
+        .map(|w| w.parse().unwrap())
+        .unwrap_or(1.5);
+    let weight: f64 = std::env::var("WEIGHT")
+        .ok()
+        .map(|w| w.parse().unwrap())
+        .unwrap_or(1.0);
+    let code = vec![(
+        shape.clone(),
+        ExpressionCode::single(&shape, weight).unwrap(),
+    )];
     let settings = SolveSettings {
         contact: false,
         ..Quality::Final.settings()
     };
-    for face in &sample.faces {
+    for face in sample
+        .faces
+        .iter()
+        .filter(|f| std::env::var("FACE").map_or(true, |n| n == f.name))
+    {
         let codes = Codes {
             expression: code[0].1,
             style: face.style,
         };
-        let goal = target(&rig, &face.model, &codes).unwrap();
         let fitter = ActuationFitter::new(&face.model, FitSettings::default()).unwrap();
+        let n = face.model.mesh.element_count();
+        let weights = face.style.shape_weights(&codes.expression);
+        println!("{} weights {:?}", face.name, weights);
+        let mut logs = vec![Matrix3::<f64>::zeros(); n];
+        let mut jaw = [0.0; 6];
+        for &(name, w) in &weights {
+            let f1 = fitter
+                .fit(
+                    &shape_target(&rig, &face.model, &[(name, 1.0)]).unwrap(),
+                    None,
+                )
+                .unwrap();
+            let (l1, j1): (Vec<_>, _) = (f1.tensors.iter().map(log_m).collect(), f1.jaw.params());
+            let (l2, j2) = if w > 1.0 {
+                let f2 = fitter
+                    .fit(
+                        &shape_target(&rig, &face.model, &[(name, w2)]).unwrap(),
+                        None,
+                    )
+                    .unwrap();
+                (
+                    Some(f2.tensors.iter().map(log_m).collect::<Vec<_>>()),
+                    Some(f2.jaw.params()),
+                )
+            } else {
+                (None, None)
+            };
+            for e in 0..n {
+                logs[e] += match &l2 {
+                    Some(l2) => l1[e] + (l2[e] - l1[e]) * ((w - 1.0) / (w2 - 1.0)),
+                    None => l1[e] * w,
+                };
+            }
+            for k in 0..6 {
+                jaw[k] += match j2 {
+                    Some(j2) => j1[k] + (j2[k] - j1[k]) * ((w - 1.0) / (w2 - 1.0)),
+                    None => w * j1[k],
+                };
+            }
+        }
+        // Pairwise jaw correctives: C_k = L(jawOpen=1, k=1) - L_jawOpen - L_k, weighted w_jO * w_k.
+        let mut corr_logs = vec![Matrix3::<f64>::zeros(); n];
+        let mut corr_jaw = [0.0; 6];
+        let single = |name: &'static str| {
+            let f = fitter
+                .fit(
+                    &shape_target(&rig, &face.model, &[(name, 1.0)]).unwrap(),
+                    None,
+                )
+                .unwrap();
+            (
+                f.tensors.iter().map(log_m).collect::<Vec<_>>(),
+                f.jaw.params(),
+            )
+        };
+        let (ljo, jjo) = single("jawOpen");
+        let wjo = weights
+            .iter()
+            .find(|p| p.0 == "jawOpen")
+            .map_or(0.0, |p| p.1);
+        for &(name, w) in &weights {
+            let (lk, jk) = single(name);
+            for e in 0..n {
+                corr_logs[e] += lk[e] * w;
+            }
+            for q in 0..6 {
+                corr_jaw[q] += w * jk[q];
+            }
+            if name != "jawOpen" && wjo != 0.0 {
+                let f = fitter
+                    .fit(
+                        &shape_target(&rig, &face.model, &[("jawOpen", 1.0), (name, 1.0)]).unwrap(),
+                        None,
+                    )
+                    .unwrap();
+                let pair: Vec<_> = f.tensors.iter().map(log_m).collect();
+                let pj = f.jaw.params();
+                for e in 0..n {
+                    corr_logs[e] += (pair[e] - ljo[e] - lk[e]) * (wjo * w);
+                }
+                for q in 0..6 {
+                    corr_jaw[q] += (pj[q] - jjo[q] - jk[q]) * (wjo * w);
+                }
+            }
+        }
+        let corrective = Fixed(
+            Actuation {
+                tensors: corr_logs.iter().map(exp_m).collect(),
+                jaw: RigidMotion::from_params(corr_jaw),
+            },
+            n,
+        );
+        let two = Fixed(
+            Actuation {
+                tensors: logs.iter().map(exp_m).collect(),
+                jaw: RigidMotion::from_params(jaw),
+            },
+            n,
+        );
+        let goal = target(&rig, &face.model, &codes).unwrap();
         let fit = fitter.fit(&goal, None).unwrap();
         let direct = Fixed(
             Actuation {
                 tensors: fit.tensors.clone(),
                 jaw: fit.jaw,
             },
-            face.model.mesh.element_count(),
+            n,
         );
         for (label, actuation) in [
             ("basis blend", face.actuation.as_ref()),
-            ("direct fit", &direct as &dyn ActuationModel),
+            ("two-weight", &two as &dyn ActuationModel),
+            ("jaw correctives", &corrective),
+            ("direct fit", &direct),
         ] {
             let measured = MeasuredFace {
                 name: &face.name,
@@ -53,19 +193,15 @@ fn main() {
                 actuation,
                 style: face.style,
             };
-            let rows = measure(&rig, &measured, &code, &settings, &|_, _| {}).unwrap();
-            let r = &rows[0];
+            let r = &measure(&rig, &measured, &code, &settings, &|_, _| {}).unwrap()[0];
             println!(
-                "{} {:?} {shape} {label}: skin max {:.2} mm (rig vertex {}), p95 {:.2}, mean {:.2}; lining mean {:.2}; {:?}; fit skin max {:.2} mm",
+                "{} {shape}@{weight} {label}: skin max {:.2} mm (rig vertex {}), p95 {:.2}; lining mean {:.2}; {:?}",
                 face.name,
-                face.style.0,
                 r.skin_max_mm,
                 r.skin_worst_vertex,
                 r.skin_p95_mm,
-                r.skin_mean_mm,
                 r.lining_mean_mm,
-                r.termination,
-                10.0 * fit.skin_max
+                r.termination
             );
         }
     }

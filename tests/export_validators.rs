@@ -1,8 +1,9 @@
 //! `facesim export` as a user runs it, with its files checked by other tools' readers: the
 //! USD layer by Pixar's USD (`pip install usd-core==26.11`, `tests/python/check_usd.py`) and the
-//! glTF file by the Khronos glTF validator (`npm ci --prefix tests/gltf`, `tests/gltf/validate.js`).
-//! Both are required: the test FAILS, saying what to install, when they are missing (CI
-//! installs them in .ci/run).
+//! glTF file by the Khronos glTF validator (`npm ci --prefix tests/gltf`, `tests/gltf/validate.js`),
+//! and the PC2 cache with its OBJ and the glTF file by Blender (Debian's `blender` and
+//! `python3-numpy`, `tests/blender/check_export.py`). All are required: the test FAILS, saying
+//! what to install, when they are missing (CI installs them in .ci/run).
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -60,6 +61,16 @@ fn require_gltf_validator() -> PathBuf {
     root().join("tests/gltf/validate.js")
 }
 
+fn require_blender() {
+    let install = "the Blender check needs Blender and numpy for its Python: \
+                   apt-get install blender python3-numpy";
+    match Command::new("blender").arg("--version").output() {
+        Ok(o) if o.status.success() => {}
+        Ok(o) => panic!("`blender --version` failed ({}); {install}", o.status),
+        Err(e) => panic!("cannot run `blender` ({e}); {install}"),
+    }
+}
+
 fn write_track(path: &Path) {
     let zero = vec![0.0; 19];
     let mut open = zero.clone();
@@ -74,8 +85,9 @@ fn write_track(path: &Path) {
 }
 
 #[test]
-fn exported_usd_and_gltf_pass_their_reference_readers() {
+fn exported_usd_gltf_and_pc2_pass_their_reference_readers() {
     require_usd();
+    require_blender();
     let validate_js = require_gltf_validator();
     let dir = std::env::temp_dir().join(format!("facesim-export-cli-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
@@ -127,6 +139,26 @@ fn exported_usd_and_gltf_pass_their_reference_readers() {
         "npm ci --prefix tests/gltf",
     );
     assert!(gltf.contains(" 0 errors"), "{gltf}");
+
+    let blender = run(
+        Command::new("blender")
+            .args([
+                "--background",
+                "--factory-startup",
+                "--python-exit-code",
+                "1",
+                "--python",
+            ])
+            .arg(root().join("tests/blender/check_export.py"))
+            .arg("--")
+            .arg(out.join("blink.obj"))
+            .arg(out.join("blink.pc2"))
+            .arg(out.join("blink.glb"))
+            .arg("4"),
+        "the Blender check",
+        "apt-get install blender python3-numpy",
+    );
+    assert!(blender.contains("\nok: "), "{blender}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

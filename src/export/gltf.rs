@@ -9,7 +9,14 @@
 //! Limits: the file grows as `24·V` bytes per frame (positions and normals, `f32`) plus the
 //! `N × N` weight keys (`4·N²` bytes, 0.4 MB at 300 frames, 13 MB at 1,800); GLB caps the
 //! whole file at 4 GiB (checked before simulating), and some real-time engines limit how many
-//! morph targets a mesh may have (use USD or PC2 for long shots). No UVs or materials.
+//! morph targets a mesh may have (use USD or PC2 for long shots). Each part (the rig's
+//! material groups) is a primitive with a material of its name (no shading parameters); the
+//! primitives share the vertices and morph targets.
+//!
+//! Texture coordinates: glTF has one UV per vertex, so a render vertex on a UV seam becomes
+//! one glTF vertex per chart it lies in (`TEXCOORD_0`, `v` flipped to glTF's top-left origin);
+//! each copy takes its render vertex's position and normal in every frame, so the seams
+//! never open.
 //!
 //! Units: metres (glTF's unit; the simulator's centimetres × 0.01), Y up.
 //!
@@ -24,6 +31,7 @@ use serde_json::{Value, json};
 
 use super::{ExportError, ExportMesh, Format, FrameSink, Out, check_sizes};
 use crate::geometry::bounds_f32 as bounds;
+use crate::model::Part;
 use crate::session::Frame;
 
 /// Centimetres → metres.
@@ -49,6 +57,7 @@ fn metres(p: &[f32; 3]) -> [f32; 3] {
 struct Layout {
     indices: u64,
     base: u64,
+    uvs: u64,
     targets: u64,
     times: u64,
     weights: u64,
@@ -56,21 +65,80 @@ struct Layout {
 }
 
 impl Layout {
-    fn new(triangles: usize, vertices: usize, frames: usize) -> Self {
+    fn new(triangles: usize, vertices: usize, uvs: bool, frames: usize) -> Self {
         let (t, v, n) = (triangles as u64, vertices as u64, frames as u64);
         let indices = 12 * t;
         let base = 24 * v;
+        let uvs = if uvs { 8 * v } else { 0 };
         let targets = 24 * v * n;
         let times = 4 * n;
         let weights = 4 * n * n;
         Layout {
             indices,
             base,
+            uvs,
             targets,
             times,
             weights,
-            total: indices + base + targets + times + weights,
+            total: indices + base + uvs + targets + times + weights,
         }
+    }
+}
+
+/// The render surface as glTF vertices: split along UV seams (module doc).
+struct SplitMesh {
+    /// The render vertex each glTF vertex copies.
+    source: Vec<u32>,
+    triangles: Vec<[u32; 3]>,
+    rest_normals: Vec<[f32; 3]>,
+    /// `TEXCOORD_0` per glTF vertex; empty without UVs.
+    uvs: Vec<[f32; 2]>,
+}
+
+impl SplitMesh {
+    fn new(mesh: &ExportMesh) -> Self {
+        let Some(uv) = &mesh.uv else {
+            return SplitMesh {
+                source: (0..mesh.vertex_count() as u32).collect(),
+                triangles: mesh.triangles.clone(),
+                rest_normals: mesh.rest_normals.clone(),
+                uvs: Vec::new(),
+            };
+        };
+        let mut index = std::collections::HashMap::new();
+        let (mut source, mut uvs) = (Vec::new(), Vec::new());
+        let triangles = mesh
+            .triangles
+            .iter()
+            .zip(&uv.triangles)
+            .map(|(t, c)| {
+                std::array::from_fn(|k| {
+                    *index.entry((t[k], c[k])).or_insert_with(|| {
+                        source.push(t[k]);
+                        let [u, v] = uv.coords[c[k] as usize];
+                        uvs.push([u, 1.0 - v]);
+                        source.len() as u32 - 1
+                    })
+                })
+            })
+            .collect();
+        SplitMesh {
+            rest_normals: source
+                .iter()
+                .map(|&v| mesh.rest_normals[v as usize])
+                .collect(),
+            source,
+            triangles,
+            uvs,
+        }
+    }
+
+    fn vertex_count(&self) -> usize {
+        self.source.len()
+    }
+
+    fn gather<'a>(&'a self, values: &'a [[f32; 3]]) -> impl Iterator<Item = [f32; 3]> + 'a {
+        self.source.iter().map(move |&v| values[v as usize])
     }
 }
 
@@ -79,7 +147,10 @@ pub struct GltfWriter {
     path: PathBuf,
     scratch: Out,
     scratch_path: PathBuf,
-    mesh: ExportMesh,
+    /// Render vertices a frame has.
+    points: usize,
+    mesh: SplitMesh,
+    parts: Vec<Part>,
     rest_m: Vec<[f32; 3]>,
     frames: usize,
     fps: f64,
@@ -98,7 +169,13 @@ impl GltfWriter {
         fps: f64,
         generator: &str,
     ) -> Result<Self, ExportError> {
-        let layout = Layout::new(mesh.triangles.len(), mesh.vertex_count(), frames);
+        let split = SplitMesh::new(mesh);
+        let layout = Layout::new(
+            split.triangles.len(),
+            split.vertex_count(),
+            !split.uvs.is_empty(),
+            frames,
+        );
         // Room for the header, chunk headers and the JSON (≈ 200 bytes per frame).
         let limit = u32::MAX as u64 - 28 - 4096 - 256 * frames as u64;
         if layout.total > limit {
@@ -107,7 +184,7 @@ impl GltfWriter {
                 reason: format!(
                     "{frames} frames of {} vertices need {:.2} GB, over GLB's 4 GiB: export fewer \
                      frames (a lower --fps or a shorter track) or use usd/pc2",
-                    mesh.vertex_count(),
+                    split.vertex_count(),
                     layout.total as f64 / 1e9
                 ),
             });
@@ -116,13 +193,15 @@ impl GltfWriter {
             path: path.to_path_buf(),
             scratch: Out::create(scratch)?,
             scratch_path: scratch.to_path_buf(),
-            rest_m: mesh.rest.iter().map(metres).collect(),
-            mesh: mesh.clone(),
+            rest_m: split.gather(&mesh.rest).map(|p| metres(&p)).collect(),
+            points: mesh.vertex_count(),
+            parts: mesh.parts.clone(),
+            buf: Vec::with_capacity(24 * split.vertex_count()),
+            mesh: split,
             frames,
             fps,
             generator: generator.to_string(),
             target_bounds: Vec::with_capacity(frames),
-            buf: Vec::with_capacity(24 * mesh.vertex_count()),
         })
     }
 
@@ -131,18 +210,19 @@ impl GltfWriter {
         positions: &[[f32; 3]],
         normals: &[[f32; 3]],
     ) -> Result<(), ExportError> {
-        check_sizes(Format::Gltf, self.mesh.vertex_count(), positions, normals)?;
+        check_sizes(Format::Gltf, self.points, positions, normals)?;
         if self.target_bounds.len() >= self.frames {
             return Err(ExportError::Writer {
                 format: Format::Gltf,
                 reason: format!("more than the {} frames announced", self.frames),
             });
         }
-        let deltas: Vec<[f32; 3]> = positions
-            .iter()
+        let deltas: Vec<[f32; 3]> = self
+            .mesh
+            .gather(positions)
             .zip(&self.rest_m)
             .map(|(p, r)| {
-                let p = metres(p);
+                let p = metres(&p);
                 [p[0] - r[0], p[1] - r[1], p[2] - r[2]]
             })
             .collect();
@@ -151,7 +231,7 @@ impl GltfWriter {
         for c in deltas.iter().flatten() {
             self.buf.extend_from_slice(&c.to_le_bytes());
         }
-        for (n, r) in normals.iter().zip(&self.mesh.rest_normals) {
+        for (n, r) in self.mesh.gather(normals).zip(&self.mesh.rest_normals) {
             for c in 0..3 {
                 self.buf.extend_from_slice(&(n[c] - r[c]).to_le_bytes());
             }
@@ -169,7 +249,12 @@ impl GltfWriter {
             json!({"buffer": 0, "byteOffset": 0, "byteLength": layout.indices, "target": ELEMENT_ARRAY_BUFFER}),
             json!({"buffer": 0, "byteOffset": layout.indices, "byteLength": layout.base, "byteStride": 12, "target": ARRAY_BUFFER}),
         ];
-        let targets_offset = layout.indices + layout.base;
+        let uv_view = (layout.uvs > 0).then(|| {
+            views.push(json!({"buffer": 0, "byteOffset": layout.indices + layout.base, "byteLength": layout.uvs, "target": ARRAY_BUFFER}));
+            views.len() - 1
+        });
+        let targets_offset = layout.indices + layout.base + layout.uvs;
+        let targets_view = views.len();
         if n > 0 {
             views.push(json!({"buffer": 0, "byteOffset": targets_offset, "byteLength": layout.targets, "byteStride": 12, "target": ARRAY_BUFFER}));
         }
@@ -178,23 +263,46 @@ impl GltfWriter {
         views.push(json!({"buffer": 0, "byteOffset": anim_offset + layout.times, "byteLength": layout.weights}));
         let (times_view, weights_view) = (views.len() - 2, views.len() - 1);
 
+        // One primitive per part (the rig's material groups), each with its run of the index
+        // buffer; they share the vertices, the morph targets and so the animation.
+        let whole = [Part {
+            name: String::new(),
+            triangles: 0..self.mesh.triangles.len() as u32,
+        }];
+        let parts = if self.parts.is_empty() {
+            &whole[..]
+        } else {
+            &self.parts[..]
+        };
+        let mut accessors: Vec<Value> = parts
+            .iter()
+            .map(|p| {
+                json!({"bufferView": 0, "byteOffset": 12 * p.triangles.start, "componentType": UNSIGNED_INT,
+                       "count": 3 * p.triangles.len(), "type": "SCALAR"})
+            })
+            .collect();
         let rest_bounds = bounds(self.rest_m.iter().copied());
-        let mut accessors = vec![
-            json!({"bufferView": 0, "componentType": UNSIGNED_INT, "count": 3 * self.mesh.triangles.len(), "type": "SCALAR"}),
-            json!({"bufferView": 1, "byteOffset": 0, "componentType": FLOAT, "count": v, "type": "VEC3",
-                   "min": num3(rest_bounds[0]), "max": num3(rest_bounds[1])}),
-            json!({"bufferView": 1, "byteOffset": 12 * v, "componentType": FLOAT, "count": v, "type": "VEC3"}),
-        ];
+        let position = accessors.len();
+        accessors.push(json!({"bufferView": 1, "byteOffset": 0, "componentType": FLOAT, "count": v, "type": "VEC3",
+                              "min": num3(rest_bounds[0]), "max": num3(rest_bounds[1])}));
+        accessors.push(json!({"bufferView": 1, "byteOffset": 12 * v, "componentType": FLOAT, "count": v, "type": "VEC3"}));
+        let mut attributes = json!({"POSITION": position, "NORMAL": position + 1});
+        if let Some(view) = uv_view {
+            attributes["TEXCOORD_0"] = json!(accessors.len());
+            accessors.push(
+                json!({"bufferView": view, "componentType": FLOAT, "count": v, "type": "VEC2"}),
+            );
+        }
         let mut targets = Vec::with_capacity(n);
         for (k, b) in self.target_bounds.iter().enumerate() {
             let offset = 24 * v * k;
             targets.push(json!({"POSITION": accessors.len(), "NORMAL": accessors.len() + 1}));
             accessors.push(
-                json!({"bufferView": 2, "byteOffset": offset, "componentType": FLOAT, "count": v,
+                json!({"bufferView": targets_view, "byteOffset": offset, "componentType": FLOAT, "count": v,
                                   "type": "VEC3", "min": num3(b[0]), "max": num3(b[1])}),
             );
             accessors.push(
-                json!({"bufferView": 2, "byteOffset": offset + 12 * v, "componentType": FLOAT,
+                json!({"bufferView": targets_view, "byteOffset": offset + 12 * v, "componentType": FLOAT,
                                   "count": v, "type": "VEC3"}),
             );
         }
@@ -209,14 +317,25 @@ impl GltfWriter {
         if let Some(w) = weights.first_mut() {
             *w = 1.0;
         }
-        json!({
+        let primitives: Vec<Value> = (0..parts.len())
+            .map(|k| {
+                let mut p =
+                    json!({"attributes": attributes, "indices": k, "mode": 4, "targets": targets});
+                if !self.parts.is_empty() {
+                    p["material"] = json!(k);
+                }
+                p
+            })
+            .collect();
+        let materials: Vec<Value> = self.parts.iter().map(|p| json!({"name": p.name})).collect();
+        let mut gltf = json!({
             "asset": {"version": "2.0", "generator": self.generator},
             "scene": 0,
             "scenes": [{"nodes": [0]}],
             "nodes": [{"name": "Face", "mesh": 0}],
             "meshes": [{
                 "name": "Surface",
-                "primitives": [{"attributes": {"POSITION": 1, "NORMAL": 2}, "indices": 0, "mode": 4, "targets": targets}],
+                "primitives": primitives,
                 "weights": weights,
             }],
             "animations": [{
@@ -227,7 +346,11 @@ impl GltfWriter {
             "buffers": [{"byteLength": layout.total}],
             "bufferViews": views,
             "accessors": accessors,
-        })
+        });
+        if !materials.is_empty() {
+            gltf["materials"] = json!(materials);
+        }
+        gltf
     }
 
     pub fn finish(self) -> Result<(), ExportError> {
@@ -238,7 +361,12 @@ impl GltfWriter {
                 reason: format!("{} of {n} frames written", self.target_bounds.len()),
             });
         }
-        let layout = Layout::new(self.mesh.triangles.len(), self.mesh.vertex_count(), n);
+        let layout = Layout::new(
+            self.mesh.triangles.len(),
+            self.mesh.vertex_count(),
+            !self.mesh.uvs.is_empty(),
+            n,
+        );
         let mut json = serde_json::to_vec(&self.json(&layout)).expect("JSON serializes");
         self.scratch.close()?;
         while !json.len().is_multiple_of(4) {
@@ -258,13 +386,18 @@ impl GltfWriter {
         head.extend_from_slice(b"JSON");
         out.write_all(&head)?;
         out.write_all(&json)?;
-        let mut bin = Vec::with_capacity(8 + layout.indices as usize + layout.base as usize);
+        let mut bin = Vec::with_capacity(
+            8 + layout.indices as usize + layout.base as usize + layout.uvs as usize,
+        );
         bin.extend_from_slice(&(layout.total as u32).to_le_bytes());
         bin.extend_from_slice(b"BIN\0");
         for i in self.mesh.triangles.iter().flatten() {
             bin.extend_from_slice(&i.to_le_bytes());
         }
         for c in self.rest_m.iter().chain(&self.mesh.rest_normals).flatten() {
+            bin.extend_from_slice(&c.to_le_bytes());
+        }
+        for c in self.mesh.uvs.iter().flatten() {
             bin.extend_from_slice(&c.to_le_bytes());
         }
         out.write_all(&bin)?;
@@ -365,6 +498,21 @@ mod tests {
         );
         let prim = &json["meshes"][0]["primitives"][0];
         assert_eq!(prim["targets"].as_array().unwrap().len(), 3);
+        // One primitive per part, named by its material, sharing vertices and targets.
+        let primitives = json["meshes"][0]["primitives"].as_array().unwrap();
+        assert_eq!(primitives.len(), 2);
+        assert_eq!(
+            json["materials"],
+            json!([{"name": "M_Front"}, {"name": "M_Back"}])
+        );
+        assert_eq!(primitives[1]["material"], 1);
+        assert_eq!(primitives[1]["attributes"], prim["attributes"]);
+        assert_eq!(primitives[1]["targets"], prim["targets"]);
+        let back = &json["accessors"][primitives[1]["indices"].as_u64().unwrap() as usize];
+        assert_eq!(
+            (back["byteOffset"].as_u64(), back["count"].as_u64()),
+            (Some(12), Some(3))
+        );
         assert_eq!(json["meshes"][0]["weights"], json!([1.0, 0.0, 0.0]));
         let accessor = |i: &Value| json["accessors"][i.as_u64().unwrap() as usize].clone();
         let view_offset = |a: &Value| {
@@ -373,11 +521,24 @@ mod tests {
                 .unwrap()
                 + a["byteOffset"].as_u64().unwrap_or(0)
         };
-        // Target 2, vertex 3: lifted 2 cm = 0.02 m in z.
+        // The UV seam splits render vertex 0 in two: glTF vertices 0 and 3 are its copies,
+        // render vertex 3 is glTF vertex 4.
+        let uv = accessor(&prim["attributes"]["TEXCOORD_0"]);
+        assert_eq!(uv["count"], 5);
+        let uv_at = |k: usize| {
+            let o = view_offset(&uv) as usize + 8 * k;
+            [f32_at(&bin, o), f32_at(&bin, o + 4)]
+        };
+        assert_eq!(uv_at(3), [0.75, 0.0], "v flipped to glTF's top-left origin");
+        assert_eq!(uv_at(0), [0.0, 1.0]);
+        // Target 2: render vertex 3 lifted 2 cm = 0.02 m in z, both copies of vertex 0 by
+        // 0.5 cm, so the seam stays closed.
         let t2 = accessor(&prim["targets"][2]["POSITION"]);
-        let o = view_offset(&t2) as usize + 3 * 12 + 8;
-        assert!((f32_at(&bin, o) - 0.02).abs() < 1e-7);
-        assert_eq!(t2["max"][2].as_f64().unwrap(), f32_at(&bin, o) as f64);
+        let z = |k: usize| f32_at(&bin, view_offset(&t2) as usize + k * 12 + 8);
+        assert!((z(4) - 0.02).abs() < 1e-7);
+        assert_eq!(t2["max"][2].as_f64().unwrap(), z(4) as f64);
+        assert_eq!(z(0), z(3));
+        assert!((z(0) - 0.005).abs() < 1e-7);
         // Base positions in metres.
         let base = accessor(&prim["attributes"]["POSITION"]);
         assert!((f32_at(&bin, view_offset(&base) as usize + 12) - 0.01).abs() < 1e-9);

@@ -121,12 +121,17 @@ impl ExportError {
     }
 }
 
-/// The surface every frame deforms: the face's render surface (skin, mouth, teeth), cm.
+/// The surface every frame deforms: the face's render surface (the whole head: skin, mouth,
+/// teeth, eyes), cm.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ExportMesh {
     pub triangles: Vec<[u32; 3]>,
     pub rest: Vec<[f32; 3]>,
     pub rest_normals: Vec<[f32; 3]>,
+    /// The rig's texture coordinates, per triangle corner.
+    pub uv: Option<crate::model::UvLayout>,
+    /// Named runs of `triangles` (the rig's material groups), covering them in order.
+    pub parts: Vec<crate::model::Part>,
 }
 
 impl ExportMesh {
@@ -139,6 +144,8 @@ impl ExportMesh {
                 &model.render.rest,
                 &model.render.triangles,
             ),
+            uv: model.render.uv.clone(),
+            parts: model.render.parts.clone(),
         }
     }
 
@@ -221,7 +228,8 @@ impl Out {
 pub(crate) mod test_mesh {
     use super::ExportMesh;
 
-    /// A unit square of two triangles and a frame generator that lifts it in `z`.
+    /// A unit square of two triangles, with a UV seam through vertex 0 (its corner in the
+    /// second triangle has other coordinates), and a frame generator that lifts it in `z`.
     pub fn square() -> ExportMesh {
         ExportMesh {
             triangles: vec![[0, 1, 2], [0, 2, 3]],
@@ -232,6 +240,20 @@ pub(crate) mod test_mesh {
                 [0.0, 1.0, 0.0],
             ],
             rest_normals: vec![[0.0, 0.0, 1.0]; 4],
+            uv: Some(crate::model::UvLayout {
+                coords: vec![[0.0, 0.0], [0.5, 0.0], [0.5, 0.5], [0.0, 0.5], [0.75, 1.0]],
+                triangles: vec![[0, 1, 2], [4, 2, 3]],
+            }),
+            parts: vec![
+                crate::model::Part {
+                    name: "M_Front".into(),
+                    triangles: 0..1,
+                },
+                crate::model::Part {
+                    name: "M_Back".into(),
+                    triangles: 1..2,
+                },
+            ],
         }
     }
 

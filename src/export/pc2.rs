@@ -204,6 +204,8 @@ impl Pc2Sink {
             &mesh.rest,
             &mesh.rest_normals,
             &mesh.triangles,
+            mesh.uv.as_ref(),
+            &mesh.parts,
         )?;
         Ok(Pc2Sink {
             writer: Pc2Writer::create(cache, mesh.vertex_count(), frames)?,

@@ -187,8 +187,43 @@ fn a_short_track_exports_to_every_format_consistently() {
         .unwrap() as usize];
     let view = &json["bufferViews"][a["bufferView"].as_u64().unwrap() as usize];
     let o = (view["byteOffset"].as_u64().unwrap() + a["byteOffset"].as_u64().unwrap()) as usize;
+    // glTF vertex 0 copies the first triangle's first corner.
+    let first = mesh.triangles[0][0] as usize;
     let dy = f32::from_le_bytes(bin[o + 4..o + 8].try_into().unwrap());
-    assert!((dy - (samples[3][0][1] - mesh.rest[0][1]) * 0.01).abs() < 1e-6);
+    assert!((dy - (samples[3][first][1] - mesh.rest[first][1]) * 0.01).abs() < 1e-6);
+
+    // The rig's UVs in every format: corner by corner in the OBJs, face-varying in USD,
+    // and in glTF one vertex per (vertex, UV) pair, the seams split.
+    let uv = mesh
+        .uv
+        .as_ref()
+        .expect("the sample's faces carry the rig's UVs");
+    let corners: Vec<u32> = uv.triangles.iter().flatten().copied().collect();
+    for obj in [&topology, &last] {
+        assert_eq!(obj.uvs.len(), uv.coords.len());
+        assert_eq!(obj.corner_uvs.as_ref().unwrap(), &corners);
+    }
+    assert!(
+        usda.contains("texCoord2f[] primvars:st = [(")
+            && usda.contains("int[] primvars:st:indices = [")
+    );
+    assert!(usda.contains("interpolation = \"faceVarying\""));
+    let mut pairs: Vec<(u32, u32)> = mesh
+        .triangles
+        .iter()
+        .flatten()
+        .copied()
+        .zip(corners.iter().copied())
+        .collect();
+    pairs.sort_unstable();
+    pairs.dedup();
+    let prim = &json["meshes"][0]["primitives"][0];
+    let texcoord = &json["accessors"][prim["attributes"]["TEXCOORD_0"].as_u64().unwrap() as usize];
+    assert_eq!(texcoord["count"].as_u64().unwrap() as usize, pairs.len());
+    assert!(
+        pairs.len() > mesh.vertex_count(),
+        "the rig's UV seams split vertices"
+    );
 
     // A failure mid-export leaves the previous outputs untouched and no temporaries.
     let before = std::fs::read(dir.join("short.pc2")).unwrap();

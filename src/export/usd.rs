@@ -1,5 +1,6 @@
 //! USD output as a text layer (`.usda`): one `Mesh` prim with the render surface's topology,
-//! rest `points` and `normals`, and time samples of `points`, `normals` and `extent` at every
+//! rest `points` and `normals`, the rig's texture coordinates as `primvars:st` (face-varying,
+//! indexed), one `GeomSubset` per part (the rig's material groups), and time samples of `points`, `normals` and `extent` at every
 //! frame (`timeCodesPerSecond` = the export's fps, time code = frame number).
 //!
 //! Units: centimetres, declared with `metersPerUnit = 0.01`; Y is up. Points are printed to
@@ -24,6 +25,8 @@ pub struct UsdWriter {
     written: usize,
     extents: Vec<[[f32; 3]; 2]>,
     line: String,
+    /// The parts' `GeomSubset` children, written after the mesh's attributes.
+    subsets: String,
 }
 
 /// Appends `v` rounded to `decimals` places (`-12.34560`). Hand-rolled because float
@@ -81,6 +84,57 @@ fn array(values: &[[f32; 3]], decimals: usize) -> String {
     s
 }
 
+/// The texture coordinates as USD's `primvars:st` (face-varying, indexed by corner).
+fn primvar_st(uv: &crate::model::UvLayout) -> String {
+    let mut s = String::with_capacity(uv.coords.len() * 24 + uv.triangles.len() * 24 + 160);
+    s.push_str("        texCoord2f[] primvars:st = [");
+    for (i, [u, v]) in uv.coords.iter().enumerate() {
+        if i > 0 {
+            s.push_str(", ");
+        }
+        s.push('(');
+        push_fixed(&mut s, *u, UV_DECIMALS);
+        s.push_str(", ");
+        push_fixed(&mut s, *v, UV_DECIMALS);
+        s.push(')');
+    }
+    s.push_str("] (\n            interpolation = \"faceVarying\"\n        )\n");
+    s.push_str("        int[] primvars:st:indices = [");
+    for (i, c) in uv.triangles.iter().flatten().enumerate() {
+        if i > 0 {
+            s.push_str(", ");
+        }
+        s.push_str(&c.to_string());
+    }
+    s.push_str("]\n");
+    s
+}
+
+/// One `GeomSubset` per part (the rig's material groups), in the `materialBind` family, so
+/// an artist binds a material to each: `/Face/Surface/M_Face`, `/Face/Surface/M_Teeth`, ….
+fn subsets(parts: &[crate::model::Part]) -> String {
+    let mut s = String::new();
+    for part in parts {
+        let name: String = part
+            .name
+            .chars()
+            .map(|c| if c.is_ascii_alphanumeric() { c } else { '_' })
+            .collect();
+        let name = if name.starts_with(|c: char| c.is_ascii_digit()) || name.is_empty() {
+            format!("_{name}")
+        } else {
+            name
+        };
+        let indices: Vec<String> = part.triangles.clone().map(|t| t.to_string()).collect();
+        s.push_str(&format!(
+            "\n        def GeomSubset \"{name}\"\n        {{\n            uniform token elementType = \"face\"\n            \
+             uniform token familyName = \"materialBind\"\n            int[] indices = [{}]\n        }}\n",
+            indices.join(", ")
+        ));
+    }
+    s
+}
+
 /// A USD `extent`: the points' bounds.
 fn extent(points: &[[f32; 3]]) -> [[f32; 3]; 2] {
     crate::geometry::bounds_f32(points.iter().copied())
@@ -88,6 +142,8 @@ fn extent(points: &[[f32; 3]]) -> [[f32; 3]; 2] {
 
 const POINT_DECIMALS: usize = 5;
 const NORMAL_DECIMALS: usize = 4;
+/// Texture coordinates to 1e-6 (a 4k texture's texel is 2.4e-4).
+const UV_DECIMALS: usize = 6;
 
 impl UsdWriter {
     /// Starts the layer at `path` (the normals' scratch file at `normals_scratch`).
@@ -109,13 +165,19 @@ impl UsdWriter {
             .collect::<Vec<_>>()
             .join(", ");
         let rest_extent = extent(&mesh.rest);
+        let st = mesh.uv.as_ref().map_or(String::new(), primvar_st);
+        let family = if mesh.parts.is_empty() {
+            ""
+        } else {
+            "        uniform token subsetFamily:materialBind:familyType = \"partition\"\n"
+        };
         let header = format!(
             "#usda 1.0\n(\n    defaultPrim = \"Face\"\n    doc = \"{doc}\"\n    metersPerUnit = 0.01\n    upAxis = \"Y\"\n    \
              timeCodesPerSecond = {fps}\n    framesPerSecond = {fps}\n    startTimeCode = 0\n    endTimeCode = {end}\n)\n\n\
              def Xform \"Face\" (\n    kind = \"component\"\n)\n{{\n    def Mesh \"Surface\"\n    {{\n        \
              uniform token subdivisionScheme = \"none\"\n        uniform token orientation = \"rightHanded\"\n        \
              int[] faceVertexCounts = [{counts}]\n        int[] faceVertexIndices = [{indices}]\n        \
-             float3[] extent = {rest_extent}\n        normal3f[] normals = {rest_normals} (\n            interpolation = \"vertex\"\n        )\n        \
+             float3[] extent = {rest_extent}\n{st}{family}        normal3f[] normals = {rest_normals} (\n            interpolation = \"vertex\"\n        )\n        \
              point3f[] points = {rest_points}\n        point3f[] points.timeSamples = {{\n",
             doc = comment.replace('"', "'"),
             end = frames.saturating_sub(1),
@@ -133,6 +195,7 @@ impl UsdWriter {
             written: 0,
             extents: Vec::with_capacity(frames),
             line: String::new(),
+            subsets: subsets(&mesh.parts),
         })
     }
 
@@ -181,7 +244,9 @@ impl UsdWriter {
         for (k, e) in self.extents.iter().enumerate() {
             tail.push_str(&format!("            {k}: {},\n", array(e, POINT_DECIMALS)));
         }
-        tail.push_str("        }\n    }\n}\n");
+        tail.push_str("        }\n");
+        tail.push_str(&self.subsets);
+        tail.push_str("    }\n}\n");
         self.out.write_all(tail.as_bytes())?;
         self.out.close()
     }

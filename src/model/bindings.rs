@@ -25,7 +25,7 @@ use nalgebra::Point3;
 use serde::{Deserialize, Serialize};
 
 use super::bone_motion::BoneMotion;
-use super::face::{Binding, FaceModel, RenderSurface};
+use super::face::{Binding, FaceModel, Part, RenderSurface, UvLayout};
 use super::fit::{ActuationFitter, FitError, FitSettings};
 use super::report::BindingReport;
 use super::targets::{TargetError, shape_target};
@@ -180,14 +180,7 @@ pub(super) fn render_surface(
     motion: &BoneMotion,
     settings: &BindingSettings,
 ) -> RenderSurface {
-    let regions = [
-        Region::FaceSkin,
-        Region::MouthSocket,
-        Region::GumsAndTongue,
-        Region::UpperTeeth,
-        Region::LowerTeeth,
-    ];
-    let surface = SurfaceTopology::from_regions(rig.faces(), &regions, EdgeSet::Triangle);
+    let surface = SurfaceTopology::from_regions(rig.faces(), &Region::ALL, EdgeSet::Triangle);
     let rig_vertices = surface.vertices();
     let mut local = vec![u32::MAX; rest.len()];
     for (i, &v) in rig_vertices.iter().enumerate() {
@@ -203,6 +196,8 @@ pub(super) fn render_surface(
         rest: points.clone(),
         triangles: Vec::new(),
         bindings: Vec::new(),
+        uv: uv_layout(rig, &surface),
+        parts: parts(rig, &surface),
     };
     let near_lips = lining_near_the_lips(rig, &surface_so_far);
     let bindings = rig_vertices
@@ -232,6 +227,15 @@ pub(super) fn render_surface(
                 {
                     Binding::Embedded { element, weights }
                 }
+                // The back of the head, the eye sockets and the eyes ride on the skull (the
+                // rig's mouth shapes move the neck under the chin by at most 2.8 mm, the lower
+                // lashes by 0.8 mm; the face skin they join still follows the tissue).
+                Some(
+                    Region::HeadAndNeck
+                    | Region::EyeSocketLeft
+                    | Region::EyeSocketRight
+                    | Region::Eyes,
+                ) => Binding::Rigid(Bone::Skull),
                 Some(Region::UpperTeeth) => Binding::Rigid(Bone::Skull),
                 Some(Region::LowerTeeth) => Binding::Rigid(Bone::Jaw),
                 _ => motion.bone_binding(v),
@@ -245,6 +249,60 @@ pub(super) fn render_surface(
         .collect();
     surface_so_far.bindings = bindings;
     surface_so_far
+}
+
+/// The rig's texture coordinates on `surface`'s triangles (corner by corner, through each
+/// triangle's source polygon), with the coordinates no triangle uses left out; `None` when
+/// the rig has none.
+fn uv_layout(rig: &FaceRig, surface: &SurfaceTopology) -> Option<UvLayout> {
+    let mesh = rig.mesh();
+    let corner_uvs = mesh.corner_uvs.as_ref()?;
+    let mut compact = vec![u32::MAX; mesh.uvs.len()];
+    let mut coords = Vec::new();
+    let triangles = surface
+        .triangles
+        .iter()
+        .zip(&surface.source_faces)
+        .map(|(t, &f)| {
+            let polygon = mesh.faces.get(f as usize);
+            let first = mesh.faces.offset(f as usize);
+            t.map(|v| {
+                let corner = polygon
+                    .iter()
+                    .position(|&c| c == v)
+                    .expect("a surface triangle's corners are corners of its source polygon");
+                let uv = corner_uvs[first + corner] as usize;
+                if compact[uv] == u32::MAX {
+                    compact[uv] = coords.len() as u32;
+                    coords.push(mesh.uvs[uv].map(|c| c as f32));
+                }
+                compact[uv]
+            })
+        })
+        .collect();
+    Some(UvLayout { coords, triangles })
+}
+
+/// The rig's material groups as runs of `surface`'s triangles (each triangle takes its
+/// source polygon's group; the rig lists its groups in polygon order, so each is one run).
+fn parts(rig: &FaceRig, surface: &SurfaceTopology) -> Vec<Part> {
+    let groups = &rig.mesh().material_groups;
+    let mut parts: Vec<Part> = Vec::new();
+    for (t, &f) in surface.source_faces.iter().enumerate() {
+        let group = groups.partition_point(|g| g.first_face <= f as usize);
+        let name = match group {
+            0 => "default",
+            g => groups[g - 1].name.as_str(),
+        };
+        match parts.last_mut() {
+            Some(part) if part.name == name => part.triangles.end = t as u32 + 1,
+            _ => parts.push(Part {
+                name: name.to_string(),
+                triangles: t as u32..t as u32 + 1,
+            }),
+        }
+    }
+    parts
 }
 
 /// The tissue fitted to each binding shape, and the rig's render surface there.
@@ -553,6 +611,75 @@ mod tests {
         for d in [near, far] {
             let slope = (skin_share(d + h, &settings) - skin_share(d - h, &settings)) / (2.0 * h);
             assert!(slope.abs() < 1e-5, "slope {slope} at {d}");
+        }
+    }
+
+    /// Every corner of the render surface carries the UV the rig gives that vertex in that
+    /// triangle's polygon; along the rig's seams a vertex has more than one.
+    #[test]
+    fn the_render_surface_carries_the_rigs_uvs_corner_by_corner() {
+        let face = coarse_face(None);
+        let uv = face.render.uv.as_ref().expect("the ICT rig has UVs");
+        assert_eq!(uv.triangles.len(), face.render.triangles.len());
+        let mesh = rig().mesh();
+        let corner_uvs = mesh.corner_uvs.as_ref().unwrap();
+        let mut of_vertex: std::collections::HashMap<u32, Vec<[f32; 2]>> = Default::default();
+        for (&v, &t) in mesh.faces.corners().iter().zip(corner_uvs) {
+            of_vertex
+                .entry(v)
+                .or_default()
+                .push(mesh.uvs[t as usize].map(|c| c as f32));
+        }
+        let mut seams = 0;
+        for (t, c) in face.render.triangles.iter().zip(&uv.triangles) {
+            for (&r, &k) in t.iter().zip(c) {
+                let rig_vertex = face.render.rig_vertices[r as usize];
+                let options = &of_vertex[&rig_vertex];
+                assert!(
+                    options.contains(&uv.coords[k as usize]),
+                    "vertex {rig_vertex}"
+                );
+                seams += usize::from(options.iter().any(|o| o != &options[0]));
+            }
+        }
+        assert!(seams > 0, "the face's UV layout has seams");
+        // UDIM tiles side by side in u (the face, the back of the head, the mouth, …).
+        assert!(
+            uv.coords
+                .iter()
+                .all(|[u, v]| (0.0..8.0).contains(u) && (0.0..=1.0).contains(v))
+        );
+    }
+
+    /// The render surface is the rig's whole head: every vertex and polygon, the parts the
+    /// rig's material groups in order, and the eyes and the back of the head on the skull.
+    #[test]
+    fn the_render_surface_is_the_whole_head_in_the_rigs_parts() {
+        let face = coarse_face(None);
+        let render = &face.render;
+        let mesh = rig().mesh();
+        assert_eq!(render.rig_vertices.len(), mesh.positions.len());
+        assert_eq!(render.triangles.len(), mesh.faces.triangulate().0.len());
+        let names: Vec<&str> = render.parts.iter().map(|p| p.name.as_str()).collect();
+        let groups: Vec<&str> = mesh
+            .material_groups
+            .iter()
+            .map(|g| g.name.as_str())
+            .collect();
+        assert_eq!(names, groups);
+        let mut next = 0;
+        for part in &render.parts {
+            assert_eq!(part.triangles.start, next, "{}", part.name);
+            next = part.triangles.end;
+        }
+        assert_eq!(next as usize, render.triangles.len());
+        for (b, &v) in render.bindings.iter().zip(&render.rig_vertices) {
+            if matches!(
+                Region::of_vertex(v as usize),
+                Some(Region::Eyes | Region::HeadAndNeck | Region::EyeSocketLeft)
+            ) {
+                assert_eq!(*b, Binding::Rigid(Bone::Skull), "rig vertex {v}");
+            }
         }
     }
 }

@@ -850,7 +850,7 @@ mod tests {
         crate::model::file::write(&path, v1, neutral_coarse()).unwrap();
         let err = FaceModel::load(&path).unwrap_err().to_string();
         assert!(
-            err.contains("version 1") && err.contains("reads version 3"),
+            err.contains("version 1") && err.contains("reads version 4"),
             "{err}"
         );
     }

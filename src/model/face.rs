@@ -19,9 +19,12 @@ use crate::sim::{Attachments, Bone, SimConfig, SimError, Simulator};
 /// Version 3: the lips' tissue is finer, the render surface is bound on its side of the mouth
 /// slit and chosen by the rig's shapes, and the deep mouth moves between the bones
 /// ([`Binding::Bones`]); version 2 bound the lower lip to the upper lip's tissue.
+/// Version 4: the render surface is the whole head (the back of the head, the eye sockets and
+/// the eyes ride on the skull) and carries the rig's texture coordinates ([`UvLayout`]) and
+/// material groups ([`Part`]).
 pub const FACE_FORMAT: Format = Format {
     kind: "face",
-    version: 3,
+    version: 4,
 };
 
 /// How one vertex of the render surface follows the simulation.
@@ -88,7 +91,27 @@ pub fn between_bones(
     skull + turn * jaw_map * turn.transpose() * (bones.target(Bone::Jaw, pivot, rest) - skull)
 }
 
-/// The artist's surface: a subset of the rig's vertices and the faces among them.
+/// The rig's texture coordinates on the render surface. UVs belong to triangle corners, not
+/// vertices: along a seam one vertex has a different `(u, v)` in each of its charts.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct UvLayout {
+    /// `(u, v)`, `v` up (OBJ's convention); the ICT rig lays its parts out on UDIM tiles
+    /// side by side in `u` (the face in [0, 1]², the back of the head in [1, 2] × [0, 1], …).
+    pub coords: Vec<[f32; 2]>,
+    /// Per render triangle, the index into `coords` of each corner (same corner order).
+    pub triangles: Vec<[u32; 3]>,
+}
+
+/// A named part of the render surface (the rig's material group: `M_Face`, `M_Teeth`,
+/// `M_EyeLashes`, …): a run of its triangles, so exports can give each part its material.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Part {
+    pub name: String,
+    pub triangles: std::ops::Range<u32>,
+}
+
+/// The artist's surface: the rig's whole head (skin, back of the head, mouth, teeth, eyes)
+/// and the faces among its vertices.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct RenderSurface {
     /// Rig vertex index of each render vertex.
@@ -98,6 +121,10 @@ pub struct RenderSurface {
     /// Triangles over render vertices.
     pub triangles: Vec<[u32; 3]>,
     pub bindings: Vec<Binding>,
+    /// Texture coordinates, when the rig has them.
+    pub uv: Option<UvLayout>,
+    /// The rig's material groups over `triangles`, in order, covering every triangle.
+    pub parts: Vec<Part>,
 }
 
 /// One identity's simulation model.

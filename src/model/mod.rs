@@ -11,7 +11,7 @@ pub mod report;
 pub mod targets;
 
 pub use build::{BuildError, BuildSettings, Lod, build_face};
-pub use face::{Binding, FaceModel, RenderSurface};
+pub use face::{Binding, FaceModel, Part, RenderSurface, UvLayout};
 pub use report::{BindingReport, BuildReport};
 pub use targets::{Target, TargetError, shape_target, target};
 

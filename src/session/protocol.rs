@@ -13,7 +13,7 @@
 //! | `set_quality` | `quality`: `interactive`/`preview`/`final`; optional `refine`, `contact`: bool | `ok` |
 //! | `set_display` | optional `crosses`, `heatmaps`: bool (overlays the frames carry) | `ok` |
 //! | `get_frame` | optional `after` (frame index: wait for a newer one), `timeout_ms` (≤ 10000, default 2000), `geometry` (default true), `encoding` (`json`/`binary`/`binary_deflate`), `base` (binary: the frame the client holds) | `frame`, or `frame_data` and its binary payload (deflated on request) (or `error` on timeout) |
-//! | `get_topology` | `face`: index | `topology`: triangles, rigid flags, mesh edges, rest positions |
+//! | `get_topology` | `face`: index | `topology`: triangles (without the eyes' see-through layers), rigid flags, base colours, mesh edges, rest positions |
 //!
 //! Expression weights must lie in [0, 1] and style values in [-1, 1] (the sliders' ranges);
 //! everything must be finite. Lines are at most [`MAX_LINE`] bytes. Setting requests merge

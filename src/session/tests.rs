@@ -880,3 +880,36 @@ fn a_solve_without_equilibrium_is_an_error_frame_and_a_capped_one_is_marked() {
     assert_eq!(f.stats.termination, crate::sim::Termination::IterationCap);
     assert!(!f.stats.converged, "{:?}", f.stats);
 }
+
+/// The viewers' topology: the whole head, without the eyes' see-through layers (they would
+/// hide the eyes), the eyes coloured by part, and only the mouth's inside under the "teeth"
+/// toggle.
+#[test]
+fn the_topology_shows_the_eyes_and_leaves_out_their_see_through_layers() {
+    let model = neutral_coarse();
+    let topology = FaceTopology::of("neutral", &model);
+    let render = &model.render;
+    let overlay: usize = render
+        .parts
+        .iter()
+        .filter(|p| face::OVERLAY_PARTS.contains(&p.name.as_str()))
+        .map(|p| p.triangles.len())
+        .sum();
+    assert!(overlay > 0);
+    assert_eq!(topology.triangles.len() + overlay, render.triangles.len());
+    let iris = render
+        .parts
+        .iter()
+        .find(|p| p.name == "M_IrisLeft")
+        .unwrap();
+    let v = render.triangles[iris.triangles.start as usize][0] as usize;
+    assert_ne!(topology.colors[v], face::SKIN_COLOR);
+    assert!(
+        !topology.rigid[v],
+        "the eyes are not under the teeth toggle"
+    );
+    let teeth = render.parts.iter().find(|p| p.name == "M_Teeth").unwrap();
+    let t = render.triangles[teeth.triangles.start as usize][0] as usize;
+    assert!(topology.rigid[t]);
+    assert_eq!(topology.colors[t], face::INNER_COLOR);
+}

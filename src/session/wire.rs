@@ -1,7 +1,7 @@
 //! Frame geometry in binary for the remote protocol: quantized, and only what moved.
 //!
-//! A frame's geometry as JSON text is ~1.8 MB (18,844 render vertices, positions and
-//! normals). Here:
+//! A frame's geometry as JSON text is ~2.2 MB (26,719 render vertices, the whole head:
+//! positions and normals). Here:
 //! - positions (render surface and simulation mesh) are quantized to [`QUANTUM`] = 0.001 cm
 //!   (0.01 mm, below what the artist can see) as integers `q = round(p / QUANTUM)`;
 //! - heatmap values (which only colour the skin) travel as IEEE half floats (11 significant

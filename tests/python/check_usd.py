@@ -1,6 +1,8 @@
 """Opens a .usda written by `facesim export` with Pixar's USD (pip install usd-core) and checks
-it: stage metadata (units, up axis, time codes), the mesh's topology and one time sample of
-points and normals per frame, each with every vertex.
+it: stage metadata (units, up axis, time codes), the mesh's topology, its texture coordinates
+(`primvars:st`, face-varying and indexed, one index per triangle corner) and one time sample
+of points and normals per frame, each with every vertex, and its parts (`GeomSubset`s of the
+rig's material groups, a partition of the faces).
 
 Usage: python3 check_usd.py FILE.usda FRAMES VERTICES TRIANGLES FPS   (prints "ok" or exits 1)
 """
@@ -29,6 +31,20 @@ def main(path, frames, vertices, triangles, fps):
     need(len(counts) == triangles and set(counts) == {3}, f"{len(counts)} faces")
     need(len(indices) == 3 * triangles and max(indices) == vertices - 1, "face vertex indices")
     need(mesh.GetNormalsInterpolation() == UsdGeom.Tokens.vertex, "normals interpolation")
+    st = UsdGeom.PrimvarsAPI(mesh.GetPrim()).GetPrimvar("st")
+    need(st and st.HasValue(), "no primvars:st")
+    need(st.GetInterpolation() == UsdGeom.Tokens.faceVarying, f"st interpolation {st.GetInterpolation()}")
+    need(str(st.GetTypeName()) == "texCoord2f[]", f"st type {st.GetTypeName()}")
+    st_indices = st.GetIndices()
+    need(st.IsIndexed() and len(st_indices) == 3 * triangles, f"{len(st_indices)} st indices")
+    need(max(st_indices) == len(st.Get()) - 1, "st indices cover the coordinates")
+    need(len(st.ComputeFlattened()) == 3 * triangles, "st flattens to one UV per corner")
+    # The parts: one GeomSubset per material group, together a partition of the faces.
+    subsets = UsdGeom.Subset.GetGeomSubsets(mesh, UsdGeom.Tokens.face, "materialBind")
+    names = [s.GetPrim().GetName() for s in subsets]
+    need("M_Face" in names and "M_Teeth" in names and "M_EyeLashes" in names, f"subsets {names}")
+    valid, reason = UsdGeom.Subset.ValidateFamily(mesh, UsdGeom.Tokens.face, "materialBind")
+    need(valid, f"materialBind subsets: {reason}")
     points, normals = mesh.GetPointsAttr(), mesh.GetNormalsAttr()
     samples = points.GetTimeSamples()
     need(samples == [float(k) for k in range(frames)], f"{len(samples)} point samples, expected {frames}")

@@ -1,6 +1,6 @@
 //! Streaming frames to a rerun viewer (spawned, over gRPC) or into an `.rrd` file.
 //!
-//! Entities: `face/skin` (a mesh: static triangles, per-frame positions and normals),
+//! Entities: `face/skin` (a mesh: static triangles and base colours, per-frame positions and normals),
 //! `face/heatmaps/<field>` (the same mesh with that field's vertex colours), `face/crosses`
 //! (actuation crosses as line strips), `face/jaw` (the jaw's rigid transform about its
 //! pivot), and `solver/{iterations,residual,solve_ms,frame_ms}` scalars; all per-frame data on
@@ -216,9 +216,16 @@ impl RerunLogger {
                 if face.is_none() {
                     send_layout(rec, &topology.rest)?;
                 }
+                let colors: Vec<Color> = topology
+                    .colors
+                    .iter()
+                    .map(|&[r, g, b]| Color::from_rgb(r, g, b))
+                    .collect();
                 rec.log_static(
                     "face/skin",
-                    &rerun::Mesh3D::update_fields().with_triangle_indices(tris.clone()),
+                    &rerun::Mesh3D::update_fields()
+                        .with_triangle_indices(tris.clone())
+                        .with_vertex_colors(colors),
                 )?;
                 for h in &frame.heatmaps {
                     rec.log_static(

@@ -27,8 +27,6 @@ impl Default for Toggles {
     }
 }
 
-const SKIN: [f32; 3] = [0.87, 0.70, 0.60];
-const TEETH: [f32; 3] = [0.93, 0.91, 0.85];
 const WIRE: [f32; 3] = [0.25, 0.25, 0.3];
 
 pub fn build(frame: &Frame, topology: &FaceTopology, toggles: &Toggles) -> Scene {
@@ -46,8 +44,7 @@ pub fn build(frame: &Frame, topology: &FaceTopology, toggles: &Toggles) -> Scene
             normal: *n,
             color: match &heat {
                 Some(c) => c[i].map(|v| v as f32 / 255.0),
-                None if topology.rigid[i] => TEETH,
-                None => SKIN,
+                None => topology.colors[i].map(|c| c as f32 / 255.0),
             },
         })
         .collect();
