@@ -62,9 +62,10 @@ enum Command {
         /// The sample folder the faces come from.
         #[arg(long, default_value = facesim::sample::SAMPLE_DIR)]
         sample: PathBuf,
-        /// Solver preset for every frame: interactive, preview or final.
-        #[arg(long, default_value = "interactive")]
-        quality: facesim::sim::Quality,
+        /// Solver preset for every frame: interactive, preview or final (default: the
+        /// track's, else interactive).
+        #[arg(long)]
+        quality: Option<facesim::sim::Quality>,
     },
     /// Train the expression/style networks (`--stage 1`: fit the per-pose actuations and jaw
     /// motions fitted to the rig's targets; `--stage 2`: fine-tune them through the simulator

@@ -108,11 +108,22 @@ fn exported_usd_gltf_and_pc2_pass_their_reference_readers() {
                 "10",
                 "--quality",
                 "interactive",
+                "--contact",
+                "on",
             ]),
         "facesim export",
         "build it with cargo",
     );
     assert!(text.contains("4 frames in"), "{text}");
+    assert!(
+        text.contains("contact on") && text.contains("of 4 frames unconverged"),
+        "{text}"
+    );
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("blink.report.json")).unwrap())
+            .unwrap();
+    assert_eq!(report["contact"], true);
+    assert_eq!(report["frames"].as_array().unwrap().len(), 4);
     let (header, _) = facesim::export::pc2::read(&out.join("blink.pc2")).unwrap();
     let topology = facesim::rig::obj::ObjMesh::read(out.join("blink.obj")).unwrap();
     assert_eq!(header.samples, 4);

@@ -9,8 +9,8 @@ use crate::session::SessionFace;
 use crate::session::track::Track;
 use crate::sim::Quality;
 
-/// `export TRACK.json --out DIR --format usd,pc2,obj,gltf [--fps 30] [--face NAME|INDEX]`
-/// (`--sample` and `--quality` come from the binary).
+/// `export TRACK.json --out DIR --format usd,pc2,obj,gltf [--fps 30] [--face NAME|INDEX]
+/// [--contact on|off]` (`--sample` and `--quality` come from the binary).
 #[derive(Clone, Debug, clap::Args)]
 pub struct ExportArgs {
     /// The animation track (facesim-track JSON, e.g. saved by the editor's timeline).
@@ -28,6 +28,26 @@ pub struct ExportArgs {
     /// The sample face to animate, by name or index (default: the face the track names).
     #[arg(long)]
     pub face: Option<String>,
+    /// Lip and teeth contact in every frame: on or off (default: the track's, else off).
+    #[arg(long, value_parser = clap::builder::BoolishValueParser::new())]
+    pub contact: Option<bool>,
+}
+
+/// The preset if none is given here or in the track.
+pub const DEFAULT_QUALITY: Quality = Quality::Interactive;
+
+/// How the export renders: the command line's choice, else the track's, else the defaults
+/// (the interactive preset without contact: contact frames cost tens of seconds at the final
+/// preset today).
+pub fn render_settings(
+    quality: Option<Quality>,
+    contact: Option<bool>,
+    track: &Track,
+) -> (Quality, bool) {
+    (
+        quality.or(track.quality).unwrap_or(DEFAULT_QUALITY),
+        contact.or(track.contact).unwrap_or(false),
+    )
 }
 
 /// Picks the face: `--face` by name or index, else the track's face.
@@ -58,11 +78,11 @@ pub fn choose_face(
 }
 
 /// Runs an export as the CLI does: loads the sample and track, shows a progress bar, prints
-/// a summary.
+/// a summary. `quality` is the command line's `--quality`, if given.
 pub fn run(
     args: &ExportArgs,
     sample_dir: &Path,
-    quality: Quality,
+    quality: Option<Quality>,
     extra: Option<&dyn SinkFactory>,
 ) -> anyhow::Result<ExportSummary> {
     use anyhow::Context as _;
@@ -74,6 +94,7 @@ pub fn run(
     let sample = Sample::load(sample_dir)
         .with_context(|| format!("loading the sample from {}", sample_dir.display()))?;
     let face = choose_face(sample.session_faces(), args.face.as_deref(), &track)?;
+    let (quality, contact) = render_settings(quality, args.contact, &track);
     let name = args
         .track
         .file_stem()
@@ -86,14 +107,17 @@ pub fn run(
         formats: args.format.clone(),
         fps: args.fps,
         quality,
+        contact,
     };
     let frames = super::frame_count(track.duration(), args.fps);
     eprintln!(
-        "exporting {} ({:.2} s, {frames} frames at {} fps) on {} at the {quality} preset → {}",
+        "exporting {} ({:.2} s, {frames} frames at {} fps) on {} at the {quality} preset, \
+         contact {} → {}",
         args.track.display(),
         track.duration(),
         args.fps,
         face.name,
+        if contact { "on" } else { "off" },
         args.out.display()
     );
     let bar = indicatif::ProgressBar::new(frames as u64);
@@ -118,6 +142,13 @@ pub fn run(
         summary.capped,
         summary.vertices,
         summary.triangles
+    );
+    eprintln!(
+        "{} of {} frames unconverged, {} with crossings (every frame: {})",
+        summary.unconverged,
+        summary.frames,
+        summary.crossing_frames,
+        summary.report.display()
     );
     for (path, bytes) in &summary.outputs {
         println!("{:>10.1} MB  {}", *bytes as f64 / 1e6, path.display());

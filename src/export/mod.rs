@@ -5,7 +5,8 @@
 //! Frames stream: each is simulated ([`run`], through the same [`Session`](crate::session::Session)
 //! the editor uses), handed to every format's writer, and dropped, so memory does not grow with
 //! the length of the track. Every output is written under a temporary name and renamed into
-//! place when the whole export succeeded ([`staging`]).
+//! place when the whole export succeeded ([`staging`]), with a report of every frame's
+//! convergence and crossings ([`report`]).
 //!
 //! Units: the simulator and the USD, PC2, OBJ and rrd outputs are in centimetres (USD says so
 //! with `metersPerUnit = 0.01`); glTF is in metres, as its specification requires.
@@ -14,6 +15,7 @@ pub mod cli;
 pub mod gltf;
 pub mod obj;
 pub mod pc2;
+pub mod report;
 pub mod run;
 pub mod staging;
 pub mod usd;

@@ -1,10 +1,12 @@
 //! The export loop: a track's codes at every frame time → the editor's [`Session`] (actuation,
-//! warm-started solve at the chosen preset, render positions and normals) → every format's
-//! writer; then the outputs are renamed into place.
+//! warm-started solve at the chosen preset, with or without contact, render positions and
+//! normals) → every format's writer and the report ([`super::report`]); then the outputs are
+//! renamed into place.
 
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
+use super::report::ReportBuilder;
 use super::staging::Staging;
 use super::{ExportError, ExportMesh, Format, FrameSink, frame_count};
 use crate::session::face::FaceTopology;
@@ -21,6 +23,8 @@ pub struct ExportJob {
     pub formats: Vec<Format>,
     pub fps: f64,
     pub quality: Quality,
+    /// Lip and teeth contact in every solve.
+    pub contact: bool,
 }
 
 /// Makes the writer of a format the core library does not write (the editor's `.rrd`).
@@ -50,7 +54,13 @@ pub struct ExportSummary {
     pub solve: Duration,
     /// Frames that hit the preset's iteration cap before its tolerance.
     pub capped: usize,
+    /// Frames that did not reach the preset's tolerance (capped or stalled above it).
+    pub unconverged: usize,
+    /// Frames in which the crossing audit found crossings.
+    pub crossing_frames: usize,
     pub median_iterations: usize,
+    /// The report's final path.
+    pub report: PathBuf,
 }
 
 /// Progress after each frame: `(frames done, frames in all)`.
@@ -93,6 +103,8 @@ pub fn export(
     let topology = FaceTopology::of(&face.name, &face.model);
     std::fs::create_dir_all(&job.out_dir).map_err(|e| ExportError::io(&job.out_dir, e))?;
     let mut staging = Staging::default();
+    let report_path = job.out_dir.join(format!("{}.report.json", job.name));
+    let mut report = ReportBuilder::new(&face.model, &job.name, job.fps, job.quality, job.contact);
     let result = (|| {
         let sinks = open_sinks(
             &mut staging,
@@ -103,7 +115,17 @@ pub fn export(
             extra,
             &face.name,
         )?;
-        run_frames(face.clone(), track, job, frames, sinks, progress)
+        let run = run_frames(
+            face.clone(),
+            track,
+            job,
+            frames,
+            sinks,
+            &mut report,
+            progress,
+        )?;
+        report.write(&staging.output(report_path.clone())?)?;
+        Ok(run)
     })();
     match result {
         Ok((solve, capped, median_iterations)) => {
@@ -123,7 +145,10 @@ pub fn export(
                 wall: start.elapsed(),
                 solve,
                 capped,
+                unconverged: report.report().unconverged,
+                crossing_frames: report.report().crossing_frames,
                 median_iterations,
+                report: report_path,
             })
         }
         Err(e) => {
@@ -205,11 +230,14 @@ fn run_frames(
     job: &ExportJob,
     frames: usize,
     mut sinks: Vec<Box<dyn FrameSink>>,
+    report: &mut ReportBuilder,
     progress: Progress<'_>,
 ) -> Result<(Duration, usize, usize), ExportError> {
+    let model = face.model.clone();
     let session = Session::new(vec![face], job.quality)?;
     session.submit_all(&[
         Request::Refine(false),
+        Request::Contact(job.contact),
         Request::Display(Display {
             crosses: false,
             heatmaps: false,
@@ -243,6 +271,7 @@ fn run_frames(
             iterations.push(frame.stats.iterations);
         }
         last_index = Some(frame.index);
+        report.record(&model, k, time, &frame);
         for sink in &mut sinks {
             sink.frame(k, &frame)?;
         }

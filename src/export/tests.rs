@@ -32,10 +32,11 @@ fn neutral() -> crate::session::SessionFace {
 }
 
 /// What an export of the short track into every core format leaves in its folder.
-const SHORT_OUTPUTS: [&str; 5] = [
+const SHORT_OUTPUTS: [&str; 6] = [
     "short.glb",
     "short.obj",
     "short.pc2",
+    "short.report.json",
     "short.usda",
     "short_obj",
 ];
@@ -93,6 +94,7 @@ fn a_short_track_exports_to_every_format_consistently() {
         formats: vec![Format::Usd, Format::Pc2, Format::Obj, Format::Gltf],
         fps: 10.0,
         quality: Quality::Interactive,
+        contact: false,
     };
 
     // rrd needs the editor binary.
@@ -174,6 +176,18 @@ fn a_short_track_exports_to_every_format_consistently() {
     for c in 0..3 {
         assert!((first[c] - samples[3][0][c]).abs() <= 1e-5);
     }
+
+    // The report: every frame converged at the preset, and the audit found the open jaw's
+    // frames free of new crossings of skin, lining and teeth.
+    let report: report::ExportReport =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("short.report.json")).unwrap())
+            .unwrap();
+    assert_eq!((report.frames.len(), report.contact), (4, false));
+    assert_eq!(report.quality, Quality::Interactive);
+    assert_eq!((report.unconverged, summary.unconverged), (0, 0));
+    assert_eq!(report.crossing_frames, summary.crossing_frames);
+    assert!(report.frames.iter().all(|f| f.converged), "{report:?}");
+    assert_eq!(report.frames[3].time, 0.3);
 
     // glTF: target 3 is frame 3 in metres, relative to the rest pose.
     let (json, bin) = gltf::read_glb(&dir.join("short.glb")).unwrap();
@@ -268,4 +282,50 @@ fn faces_are_chosen_by_name_index_or_the_track() {
         err.contains("no face 'nobody'") && err.contains("identity000"),
         "{err}"
     );
+}
+
+/// A frame that stopped short of the preset's tolerance is counted and marked in the report,
+/// and a frame whose lips pass through each other carries its crossings.
+#[test]
+fn the_report_marks_unconverged_and_crossing_frames() {
+    use crate::session::{Request, Session};
+    let face = neutral();
+    let model = face.model.clone();
+    let session = Session::new(vec![face], Quality::Interactive).unwrap();
+    let generation = session
+        .submit(Request::Codes(short_track().sample(0.3).unwrap()))
+        .unwrap();
+    let frame = session
+        .wait_generation(generation, std::time::Duration::from_secs(60))
+        .unwrap();
+    let mut builder = report::ReportBuilder::new(&model, "t", 30.0, Quality::Interactive, false);
+    builder.record(&model, 0, 0.0, &frame);
+    let mut stopped = (*frame).clone();
+    stopped.stats.converged = false;
+    stopped.stats.termination = crate::sim::Termination::IterationCap;
+    builder.record(&model, 1, 1.0 / 30.0, &stopped);
+    // The lips around rig vertex 6502 pushed 2 cm down, through the teeth and the lining.
+    let mut pressed = (*frame).clone();
+    let upper_lip = model
+        .render
+        .rig_vertices
+        .iter()
+        .position(|&v| v == 6502)
+        .unwrap();
+    for (i, p) in pressed.positions.iter_mut().enumerate() {
+        if (model.render.rest[i] - model.render.rest[upper_lip]).norm() < 0.8 {
+            p[1] -= 2.0;
+        }
+    }
+    builder.record(&model, 2, 2.0 / 30.0, &pressed);
+    let report = builder.report();
+    assert_eq!(report.unconverged, 1);
+    assert!(!report.frames[1].converged && report.frames[0].converged);
+    assert!(
+        report.frames[2].crossings > report.frames[0].crossings,
+        "{:?}",
+        report.frames[2]
+    );
+    let crossing = report.frames.iter().filter(|f| f.crossings > 0).count();
+    assert!(crossing >= 1 && report.crossing_frames == crossing);
 }

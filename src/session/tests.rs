@@ -557,6 +557,14 @@ mod protocol_tests {
         else {
             panic!("topology")
         };
+        let mut drawn: Vec<usize> = topology
+            .triangles
+            .iter()
+            .flatten()
+            .map(|&v| v as usize)
+            .collect();
+        drawn.sort_unstable();
+        drawn.dedup();
         let mut assembler = FrameAssembler::default();
         let fetch = |c: &mut Connection, index: u64, encoding, base| {
             c.request(&Message::GetFrame {
@@ -616,7 +624,13 @@ mod protocol_tests {
             let quantum = (0.5 * QUANTUM) as f32 + 1e-5;
             assert!(worst(&binary.positions, &json.positions) <= quantum);
             assert!(worst(&binary.mesh_positions, &json.mesh_positions) <= quantum);
-            assert!(worst(&binary.normals, &json.normals) < 0.05);
+            // The client recomputes normals over the triangles the viewers draw; the eyes'
+            // see-through layers, which they leave out, have none there.
+            let (drawn_binary, drawn_json): (Vec<[f32; 3]>, Vec<[f32; 3]>) = drawn
+                .iter()
+                .map(|&v| (binary.normals[v], json.normals[v]))
+                .unzip();
+            assert!(worst(&drawn_binary, &drawn_json) < 0.05);
             assert_eq!(binary.heatmaps.len(), json.heatmaps.len());
             assert!(!json.heatmaps.is_empty());
             for (b, j) in binary.heatmaps.iter().zip(&json.heatmaps) {

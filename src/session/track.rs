@@ -1,10 +1,11 @@
 //! Animation tracks: keyframed codes over time, written by the editor's timeline (record,
 //! keyframes) and read by `facesim export`.
 //!
-//! File format (JSON, version 1):
+//! File format (JSON, version 2):
 //!
 //! ```json
-//! { "format": "facesim-track", "version": 1, "face": "identity000",
+//! { "format": "facesim-track", "version": 2, "face": "identity000",
+//!   "quality": "final", "contact": true,
 //!   "keys": [ { "time": 0.0, "codes": { "expression": [19 weights], "style": [4 values] } }, … ] }
 //! ```
 //!
@@ -13,15 +14,21 @@
 //! [`StyleCode::NAMES`](crate::rig::style::StyleCode::NAMES). Between keys the codes are
 //! interpolated linearly; before the first and after the last key they hold. `face` names the
 //! face the track was made on (a sample face name; informative, the exporter may retarget).
+//! `quality` (interactive, preview or final) and `contact` say how the track asks to be
+//! rendered; both are optional, and the exporter's flags override them. Version 1 (the same
+//! without `quality` and `contact`) still loads.
 
 use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
 use crate::drive::Codes;
+use crate::sim::Quality;
 
 pub const TRACK_FORMAT: &str = "facesim-track";
-pub const TRACK_VERSION: u32 = 1;
+/// The version this build writes; it reads [`OLDEST_TRACK_VERSION`] up to this one.
+pub const TRACK_VERSION: u32 = 2;
+pub const OLDEST_TRACK_VERSION: u32 = 1;
 
 /// One keyframe.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -36,6 +43,12 @@ pub struct Track {
     pub format: String,
     pub version: u32,
     pub face: String,
+    /// The solver preset the track asks to be rendered at (version 2).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub quality: Option<Quality>,
+    /// Whether the track asks for lip and teeth contact (version 2).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub contact: Option<bool>,
     pub keys: Vec<Key>,
 }
 
@@ -53,7 +66,10 @@ pub enum TrackError {
     },
     #[error("not a facesim track (format '{0}', expected '{TRACK_FORMAT}')")]
     Format(String),
-    #[error("track version {0} is not supported (this build reads version {TRACK_VERSION})")]
+    #[error(
+        "track version {0} is not supported (this build reads versions {OLDEST_TRACK_VERSION} to \
+         {TRACK_VERSION})"
+    )]
     Version(u32),
     #[error("key {index}: {reason}")]
     BadKey { index: usize, reason: String },
@@ -65,6 +81,8 @@ impl Track {
             format: TRACK_FORMAT.into(),
             version: TRACK_VERSION,
             face: face.into(),
+            quality: None,
+            contact: None,
             keys: Vec::new(),
         }
     }
@@ -114,7 +132,7 @@ impl Track {
         if self.format != TRACK_FORMAT {
             return Err(TrackError::Format(self.format.clone()));
         }
-        if self.version != TRACK_VERSION {
+        if !(OLDEST_TRACK_VERSION..=TRACK_VERSION).contains(&self.version) {
             return Err(TrackError::Version(self.version));
         }
         for (index, k) in self.keys.iter().enumerate() {
@@ -149,7 +167,7 @@ impl Track {
         if header.format != TRACK_FORMAT {
             return Err(TrackError::Format(header.format));
         }
-        if header.version != TRACK_VERSION {
+        if !(OLDEST_TRACK_VERSION..=TRACK_VERSION).contains(&header.version) {
             return Err(TrackError::Version(header.version));
         }
         let track: Track =
@@ -208,7 +226,11 @@ mod tests {
         assert_eq!(Track::load(&path).unwrap(), t);
 
         let text = std::fs::read_to_string(&path).unwrap();
-        std::fs::write(&path, text.replace("\"version\": 1", "\"version\": 9")).unwrap();
+        assert!(
+            !text.contains("quality") && !text.contains("contact"),
+            "{text}"
+        );
+        std::fs::write(&path, text.replace("\"version\": 2", "\"version\": 9")).unwrap();
         assert!(matches!(Track::load(&path), Err(TrackError::Version(9))));
         let mut bad = t.clone();
         bad.keys[1].time = 0.0;
@@ -216,6 +238,32 @@ mod tests {
             bad.save(&path),
             Err(TrackError::BadKey { index: 1, .. })
         ));
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// Version 2 carries the preset and contact; version 1 files (without them) still load.
+    #[test]
+    fn version_two_carries_how_to_render_and_version_one_still_loads() {
+        let dir = std::env::temp_dir().join(format!("facesim-track2-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("b.json");
+        let mut t = Track::new("neutral");
+        t.quality = Some(Quality::Final);
+        t.contact = Some(true);
+        t.set_key(0.0, codes(0.2));
+        t.save(&path).unwrap();
+        let text = std::fs::read_to_string(&path).unwrap();
+        assert!(text.contains("\"quality\": \"final\"") && text.contains("\"contact\": true"));
+        assert_eq!(Track::load(&path).unwrap(), t);
+        let v1 = r#"{"format": "facesim-track", "version": 1, "face": "neutral",
+            "keys": [{"time": 0.0, "codes": {"expression": [0.5, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0], "style": [0, 0, 0, 0]}}]}"#;
+        std::fs::write(&path, v1).unwrap();
+        let old = Track::load(&path).unwrap();
+        assert_eq!((old.version, old.quality, old.contact), (1, None, None));
+        assert_eq!(
+            old.sample(0.0).unwrap().expression.get("jawOpen"),
+            Some(0.5)
+        );
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }

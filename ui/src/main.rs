@@ -41,9 +41,9 @@ struct Cli {
     /// Also stream frames to rerun: `spawn`, `connect [URL]` or `save FILE.rrd`.
     #[arg(long, global = true, num_args = 1..=2, value_names = ["MODE", "ARG"])]
     rerun: Vec<String>,
-    /// Quality preset to start with.
-    #[arg(long, default_value = "interactive", global = true)]
-    quality: Quality,
+    /// Quality preset to start with (interactive if not given; `export` takes the track's).
+    #[arg(long, global = true)]
+    quality: Option<Quality>,
     /// What the sliders drive: the fitted per-shape bases or the trained networks.
     #[arg(long, value_enum, default_value_t = faces::Actuation::Basis, global = true)]
     actuation: faces::Actuation,
@@ -143,7 +143,7 @@ fn main() -> Result<()> {
             let settings = settings.with_tls(tls);
             let session = Arc::new(faces::open_sample_session(
                 &cli.sample,
-                cli.quality,
+                cli.quality.unwrap_or(Quality::Interactive),
                 cli.actuation,
             )?);
             if let Some(t) = &rerun {
@@ -191,7 +191,7 @@ fn main() -> Result<()> {
                 }
                 None => Arc::new(faces::open_sample_session(
                     &cli.sample,
-                    cli.quality,
+                    cli.quality.unwrap_or(Quality::Interactive),
                     cli.actuation,
                 )?),
             };

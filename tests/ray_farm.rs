@@ -1,0 +1,102 @@
+//! Many shots on Ray: `tools/ray/export_shots.py` on a local Ray cluster (PyPI `ray==2.60.0`,
+//! required: the test FAILS, saying what to install, without it) exports two short tracks as
+//! two Ray tasks, gathers their reports, skips them when run again, and reports a broken shot
+//! without stopping the others.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+fn python() -> String {
+    std::env::var("FACESIM_PYTHON").unwrap_or_else(|_| "python3".into())
+}
+
+fn write_track(path: &Path, jaw: f64) {
+    let mut open = vec![0.0; 19];
+    open[0] = jaw;
+    let key = |t: f64, e: &Vec<f64>| serde_json::json!({"time": t, "codes": {"expression": e, "style": [0.0, 0.0, 0.0, 0.0]}});
+    let track = serde_json::json!({
+        "format": "facesim-track", "version": 2, "face": "neutral", "quality": "interactive",
+        "keys": [key(0.0, &vec![0.0; 19]), key(0.2, &open)],
+    });
+    std::fs::write(path, track.to_string()).unwrap();
+}
+
+fn farm(shots: &Path, out: &Path) -> (Output, serde_json::Value) {
+    let run = Command::new(python())
+        .arg(root().join("tools/ray/export_shots.py"))
+        .arg(shots)
+        .arg("--out")
+        .arg(out)
+        .args(["--format", "pc2", "--fps", "10", "--facesim"])
+        .arg(env!("CARGO_BIN_EXE_facesim"))
+        .arg("--sample")
+        .arg(root().join(facesim::sample::SAMPLE_DIR))
+        .output()
+        .unwrap();
+    let report = std::fs::read_to_string(out.join("farm-report.json"))
+        .map(|t| serde_json::from_str(&t).unwrap())
+        .unwrap_or(serde_json::Value::Null);
+    (run, report)
+}
+
+fn text(o: &Output) -> String {
+    format!(
+        "{}{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    )
+}
+
+#[test]
+fn shots_export_as_ray_tasks_and_a_rerun_continues_where_it_stopped() {
+    let check = Command::new(python()).args(["-c", "import ray"]).output();
+    assert!(
+        check.is_ok_and(|o| o.status.success()),
+        "the farm test needs Ray for Python: pip install ray==2.60.0"
+    );
+    let dir = std::env::temp_dir().join(format!("facesim-ray-{}", std::process::id()));
+    let (shots, out) = (dir.join("shots"), dir.join("out"));
+    std::fs::create_dir_all(&shots).unwrap();
+    write_track(&shots.join("open.json"), 0.4);
+    write_track(&shots.join("smile.json"), 0.2);
+
+    let (run, report) = farm(&shots, &out);
+    assert!(run.status.success(), "{}", text(&run));
+    assert_eq!(
+        (report["done"].as_u64(), report["failed"].as_u64()),
+        (Some(2), Some(0))
+    );
+    for shot in report["shots"].as_array().unwrap() {
+        assert_eq!(shot["status"], "done", "{shot}");
+        assert_eq!(shot["frames"], 3);
+        assert_eq!(shot["quality"], "interactive", "the track's preset");
+        let name = shot["shot"].as_str().unwrap();
+        for file in [".pc2", ".obj", ".report.json"] {
+            assert!(out.join(name).join(format!("{name}{file}")).is_file());
+        }
+    }
+    let cache = out.join("open/open.pc2");
+    let written = std::fs::metadata(&cache).unwrap().modified().unwrap();
+
+    // Run again with a broken shot beside: the finished ones are skipped, the broken one is
+    // reported as failed, and the exit code says so.
+    std::fs::write(shots.join("broken.json"), "{ not a track").unwrap();
+    let (run, report) = farm(&shots, &out);
+    assert!(!run.status.success(), "{}", text(&run));
+    assert_eq!(
+        (report["skipped"].as_u64(), report["failed"].as_u64()),
+        (Some(2), Some(1)),
+        "{}",
+        text(&run)
+    );
+    assert_eq!(
+        std::fs::metadata(&cache).unwrap().modified().unwrap(),
+        written
+    );
+    assert!(text(&run).contains("broken failed"), "{}", text(&run));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
