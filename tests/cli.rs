@@ -71,6 +71,21 @@ fn bad_arguments_fail_with_a_message() {
         stderr_of_failure(facesim().args(["bench", "solver", "--elements", "many"]))
             .contains("invalid value")
     );
+    let export = |frames: &str| {
+        stderr_of_failure(facesim().args([
+            "export",
+            "examples/tracks/smile.json",
+            "--out",
+            "unused",
+            "--format",
+            "pc2",
+            "--frames",
+            frames,
+        ]))
+    };
+    assert!(export("12").contains("is not a frame range A..B"));
+    assert!(export("9..3").contains("the range 9..3 is empty"));
+    assert!(export("400..500").contains("hold none of the track's 301 frames"));
 }
 
 /// The displacement baseline end to end: `train --stage displacement` (a few poses per face,

@@ -1,7 +1,7 @@
 //! Many shots on Ray: `tools/ray/export_shots.py` on a local Ray cluster (PyPI `ray==2.60.0`,
 //! required: the test FAILS, saying what to install, without it) exports two short tracks as
-//! two Ray tasks, gathers their reports, skips them when run again, and reports a broken shot
-//! without stopping the others.
+//! two Ray tasks, gathers their reports, skips them when run again, reports a broken shot
+//! without stopping the others, and splits shots into ranges of frames, a task each.
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
@@ -25,12 +25,13 @@ fn write_track(path: &Path, jaw: f64) {
     std::fs::write(path, track.to_string()).unwrap();
 }
 
-fn farm(shots: &Path, out: &Path) -> (Output, serde_json::Value) {
+fn farm(shots: &Path, out: &Path, extra: &[&str]) -> (Output, serde_json::Value) {
     let run = Command::new(python())
         .arg(root().join("tools/ray/export_shots.py"))
         .arg(shots)
         .arg("--out")
         .arg(out)
+        .args(extra)
         .args(["--format", "pc2", "--fps", "10", "--facesim"])
         .arg(env!("CARGO_BIN_EXE_facesim"))
         .arg("--sample")
@@ -64,7 +65,7 @@ fn shots_export_as_ray_tasks_and_a_rerun_continues_where_it_stopped() {
     write_track(&shots.join("open.json"), 0.4);
     write_track(&shots.join("smile.json"), 0.2);
 
-    let (run, report) = farm(&shots, &out);
+    let (run, report) = farm(&shots, &out, &[]);
     assert!(run.status.success(), "{}", text(&run));
     assert_eq!(
         (report["done"].as_u64(), report["failed"].as_u64()),
@@ -85,7 +86,7 @@ fn shots_export_as_ray_tasks_and_a_rerun_continues_where_it_stopped() {
     // Run again with a broken shot beside: the finished ones are skipped, the broken one is
     // reported as failed, and the exit code says so.
     std::fs::write(shots.join("broken.json"), "{ not a track").unwrap();
-    let (run, report) = farm(&shots, &out);
+    let (run, report) = farm(&shots, &out, &[]);
     assert!(!run.status.success(), "{}", text(&run));
     assert_eq!(
         (report["skipped"].as_u64(), report["failed"].as_u64()),
@@ -98,5 +99,21 @@ fn shots_export_as_ray_tasks_and_a_rerun_continues_where_it_stopped() {
         written
     );
     assert!(text(&run).contains("broken failed"), "{}", text(&run));
+
+    // A long shot split into ranges, one task each: frames keep their numbers.
+    std::fs::remove_file(shots.join("broken.json")).unwrap();
+    let chunked = dir.join("chunked");
+    let (run, report) = farm(&shots, &chunked, &["--chunk", "2", "--lead-in", "2"]);
+    assert!(run.status.success(), "{}", text(&run));
+    assert_eq!(
+        report["done"].as_u64(),
+        Some(4),
+        "two shots of frames 0..2 and 2..3"
+    );
+    let (header, samples) =
+        facesim::export::pc2::read(&chunked.join("open/frames-2-3/open.pc2")).unwrap();
+    assert_eq!((header.start_frame, samples.len()), (2.0, 1));
+    let (whole, _) = facesim::export::pc2::read(&out.join("open/open.pc2")).unwrap();
+    assert_eq!(whole.samples, 3);
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -3,14 +3,15 @@
 
 use std::path::{Path, PathBuf};
 
-use super::{ExportError, ExportJob, ExportSummary, Format, SinkFactory, export};
+use super::{ExportError, ExportJob, ExportSummary, Format, FrameRange, SinkFactory, export};
 use crate::sample::Sample;
 use crate::session::SessionFace;
 use crate::session::track::Track;
 use crate::sim::Quality;
 
 /// `export TRACK.json --out DIR --format usd,pc2,obj,gltf [--fps 30] [--face NAME|INDEX]
-/// [--contact on|off]` (`--sample` and `--quality` come from the binary).
+/// [--contact on|off] [--frames A..B [--lead-in 10]]` (`--sample` and `--quality` come from
+/// the binary).
 #[derive(Clone, Debug, clap::Args)]
 pub struct ExportArgs {
     /// The animation track (facesim-track JSON, e.g. saved by the editor's timeline).
@@ -31,6 +32,34 @@ pub struct ExportArgs {
     /// Lip and teeth contact in every frame: on or off (default: the track's, else off).
     #[arg(long, value_parser = clap::builder::BoolishValueParser::new())]
     pub contact: Option<bool>,
+    /// Only frames A..B of the track (B excluded; `A..` to the end), numbered as in the whole
+    /// track, to split a long shot.
+    #[arg(long, value_parser = parse_frames)]
+    pub frames: Option<(usize, usize)>,
+    /// Frames solved before A, not written, so the range starts from the state the whole
+    /// export has there (warm starts).
+    #[arg(long, default_value_t = 10, requires = "frames")]
+    pub lead_in: usize,
+}
+
+/// `A..B`, `A..` or `..B` (frame numbers; B excluded).
+fn parse_frames(s: &str) -> Result<(usize, usize), String> {
+    let (a, b) = s
+        .split_once("..")
+        .ok_or_else(|| format!("'{s}' is not a frame range A..B (e.g. 0..300, 300..)"))?;
+    let number = |t: &str, default: usize| {
+        if t.is_empty() {
+            Ok(default)
+        } else {
+            t.parse::<usize>()
+                .map_err(|_| format!("'{t}' in '{s}' is not a frame number"))
+        }
+    };
+    let (first, end) = (number(a, 0)?, number(b, usize::MAX)?);
+    if first >= end {
+        return Err(format!("the range {s} is empty"));
+    }
+    Ok((first, end))
 }
 
 /// The preset if none is given here or in the track.
@@ -108,10 +137,22 @@ pub fn run(
         fps: args.fps,
         quality,
         contact,
+        range: args.frames.map(|(first, end)| FrameRange {
+            first,
+            end,
+            lead_in: args.lead_in,
+        }),
     };
-    let frames = super::frame_count(track.duration(), args.fps);
+    let total = super::frame_count(track.duration(), args.fps);
+    let (frames, which) = match args.frames {
+        Some((first, end)) => (
+            end.min(total).saturating_sub(first),
+            format!("frames {first}..{} of {total}", end.min(total)),
+        ),
+        None => (total, format!("{total} frames")),
+    };
     eprintln!(
-        "exporting {} ({:.2} s, {frames} frames at {} fps) on {} at the {quality} preset, \
+        "exporting {} ({:.2} s, {which} at {} fps) on {} at the {quality} preset, \
          contact {} → {}",
         args.track.display(),
         track.duration(),

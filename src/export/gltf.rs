@@ -151,6 +151,8 @@ pub struct GltfWriter {
     points: usize,
     mesh: SplitMesh,
     parts: Vec<Part>,
+    /// The first frame's number: frame `first + k` plays at `(first + k) / fps`.
+    first: usize,
     rest_m: Vec<[f32; 3]>,
     frames: usize,
     fps: f64,
@@ -165,6 +167,7 @@ impl GltfWriter {
         path: &Path,
         scratch: &Path,
         mesh: &ExportMesh,
+        first: usize,
         frames: usize,
         fps: f64,
         generator: &str,
@@ -196,6 +199,7 @@ impl GltfWriter {
             rest_m: split.gather(&mesh.rest).map(|p| metres(&p)).collect(),
             points: mesh.vertex_count(),
             parts: mesh.parts.clone(),
+            first,
             buf: Vec::with_capacity(24 * split.vertex_count()),
             mesh: split,
             frames,
@@ -306,11 +310,11 @@ impl GltfWriter {
                                   "count": v, "type": "VEC3"}),
             );
         }
-        let last_time = ((n.max(1) - 1) as f64 / self.fps) as f32;
+        let time = |k: usize| ((self.first + k) as f64 / self.fps) as f32;
         let times_accessor = accessors.len();
         accessors.push(
             json!({"bufferView": times_view, "componentType": FLOAT, "count": n, "type": "SCALAR",
-                              "min": [0.0], "max": [last_time as f64]}),
+                              "min": [time(0) as f64], "max": [time(n.max(1) - 1) as f64]}),
         );
         accessors.push(json!({"bufferView": weights_view, "componentType": FLOAT, "count": n * n, "type": "SCALAR"}));
         let mut weights = vec![0.0; n];
@@ -413,7 +417,7 @@ impl GltfWriter {
         }
         let mut row = Vec::with_capacity(4 * n);
         for k in 0..n {
-            row.extend_from_slice(&((k as f64 / self.fps) as f32).to_le_bytes());
+            row.extend_from_slice(&(((self.first + k) as f64 / self.fps) as f32).to_le_bytes());
         }
         out.write_all(&row)?;
         for k in 0..n {
@@ -485,7 +489,7 @@ mod tests {
         std::fs::create_dir_all(&dir).unwrap();
         let (path, scratch) = (dir.join("a.glb"), dir.join("a.targets"));
         let mesh = test_mesh::square();
-        let mut w = GltfWriter::create(&path, &scratch, &mesh, 3, 10.0, "test").unwrap();
+        let mut w = GltfWriter::create(&path, &scratch, &mesh, 0, 3, 10.0, "test").unwrap();
         for k in 0..3 {
             let (p, n) = test_mesh::frame(&mesh, k);
             w.write_frame(&p, &n).unwrap();
@@ -555,7 +559,7 @@ mod tests {
         assert_eq!(row, [0.0, 1.0, 0.0]);
 
         // A track that would pass 4 GiB is refused before anything is simulated.
-        let big = GltfWriter::create(&path, &scratch, &mesh, 40_000, 30.0, "test");
+        let big = GltfWriter::create(&path, &scratch, &mesh, 0, 40_000, 30.0, "test");
         assert!(matches!(big, Err(ExportError::TooLarge { .. })));
         std::fs::remove_dir_all(&dir).unwrap();
     }

@@ -22,7 +22,7 @@ pub mod usd;
 
 use std::path::Path;
 
-pub use run::{ExportJob, ExportSummary, SinkFactory, export};
+pub use run::{ExportJob, ExportSummary, FrameRange, SinkFactory, export};
 
 use crate::session::Frame;
 
@@ -98,6 +98,12 @@ pub enum ExportError {
     BadFps(f64),
     #[error("the track has no keys")]
     EmptyTrack,
+    #[error("frames {first}..{end} hold none of the track's {total} frames (0..{total})")]
+    EmptyRange {
+        first: usize,
+        end: usize,
+        total: usize,
+    },
     #[error("{0}")]
     Face(String),
     #[error("{format}: {reason}")]
@@ -162,8 +168,9 @@ pub fn frame_count(duration: f64, fps: f64) -> usize {
     (duration * fps + 1e-9).floor() as usize + 1
 }
 
-/// Where one format's frames go. `frame` is called for frames `0, 1, …` in order; `finish`
-/// completes the (temporary) file.
+/// Where one format's frames go. `frame` is called for the export's frames in order (their
+/// numbers in the track: `0, 1, …`, or a range's `first, first + 1, …`); `finish` completes
+/// the (temporary) file.
 pub trait FrameSink {
     fn frame(&mut self, index: usize, frame: &Frame) -> Result<(), ExportError>;
     fn finish(self: Box<Self>) -> Result<(), ExportError>;

@@ -121,8 +121,14 @@ pub struct Pc2Writer {
 }
 
 impl Pc2Writer {
-    /// Writes the header of a cache of `frames` samples of `points` points.
-    pub fn create(path: &Path, points: usize, frames: usize) -> Result<Self, ExportError> {
+    /// Writes the header of a cache of `frames` samples of `points` points, the first at frame
+    /// `first`.
+    pub fn create(
+        path: &Path,
+        points: usize,
+        first: usize,
+        frames: usize,
+    ) -> Result<Self, ExportError> {
         let too_large = |what: &str| ExportError::TooLarge {
             format: Format::Pc2,
             reason: format!("{what} does not fit the header's 32-bit count"),
@@ -132,7 +138,7 @@ impl Pc2Writer {
                 .ok()
                 .filter(|&p| p <= i32::MAX as u32)
                 .ok_or_else(|| too_large("the point count"))?,
-            start_frame: 0.0,
+            start_frame: first as f32,
             sample_rate: 1.0,
             samples: u32::try_from(frames)
                 .ok()
@@ -196,6 +202,7 @@ impl Pc2Sink {
         cache: &Path,
         topology_obj: &Path,
         mesh: &ExportMesh,
+        first: usize,
         frames: usize,
     ) -> Result<Self, ExportError> {
         obj::write_obj(
@@ -208,7 +215,7 @@ impl Pc2Sink {
             &mesh.parts,
         )?;
         Ok(Pc2Sink {
-            writer: Pc2Writer::create(cache, mesh.vertex_count(), frames)?,
+            writer: Pc2Writer::create(cache, mesh.vertex_count(), first, frames)?,
             vertices: mesh.vertex_count(),
         })
     }
@@ -235,7 +242,7 @@ mod tests {
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join("a.pc2");
         let mesh = test_mesh::square();
-        let mut w = Pc2Writer::create(&path, 4, 3).unwrap();
+        let mut w = Pc2Writer::create(&path, 4, 5, 3).unwrap();
         let frames: Vec<_> = (0..3).map(|k| test_mesh::frame(&mesh, k).0).collect();
         for f in &frames {
             w.write_frame(f).unwrap();
@@ -250,7 +257,8 @@ mod tests {
         assert_eq!(&bytes[..12], b"POINTCACHE2\0");
         assert_eq!(i32::from_le_bytes(bytes[12..16].try_into().unwrap()), 1);
         assert_eq!(i32::from_le_bytes(bytes[16..20].try_into().unwrap()), 4);
-        assert_eq!(f32::from_le_bytes(bytes[20..24].try_into().unwrap()), 0.0);
+        // A range of a track's frames starts at its first frame's number.
+        assert_eq!(f32::from_le_bytes(bytes[20..24].try_into().unwrap()), 5.0);
         assert_eq!(f32::from_le_bytes(bytes[24..28].try_into().unwrap()), 1.0);
         assert_eq!(i32::from_le_bytes(bytes[28..32].try_into().unwrap()), 3);
         assert_eq!(bytes.len(), 32 + 3 * 4 * 12);
@@ -264,7 +272,7 @@ mod tests {
         assert_eq!(samples, frames);
 
         // Too few frames is an error, and a truncated file fails to read.
-        let w = Pc2Writer::create(&path, 4, 3).unwrap();
+        let w = Pc2Writer::create(&path, 4, 0, 3).unwrap();
         assert!(w.finish().is_err());
         assert!(read(&path).unwrap_err().contains("header implies"));
         std::fs::remove_dir_all(&dir).unwrap();

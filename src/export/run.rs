@@ -25,6 +25,43 @@ pub struct ExportJob {
     pub quality: Quality,
     /// Lip and teeth contact in every solve.
     pub contact: bool,
+    /// The frames to write (`None`: all of the track's).
+    pub range: Option<FrameRange>,
+}
+
+/// A range of a track's frames, `first..end` (frame `k` at `t = k/fps`; `end` past the last
+/// frame means to the end), written after solving up to `lead_in` frames before `first`
+/// without writing them. Every solve warm-starts from the last, so a range that starts cold
+/// would differ from the same frames of the whole export; the lead-in brings the solver's
+/// state to where the whole export has it (the difference is measured in the export guide).
+/// Frames keep their numbers: time codes, PC2's start frame, OBJ names and glTF times are
+/// those of the whole track, so ranges of one shot line up.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct FrameRange {
+    pub first: usize,
+    pub end: usize,
+    pub lead_in: usize,
+}
+
+impl FrameRange {
+    /// The frames of a track of `total` frames this range writes, and where its lead-in starts.
+    fn resolve(
+        range: Option<FrameRange>,
+        total: usize,
+    ) -> Result<(usize, usize, usize), ExportError> {
+        let Some(r) = range else {
+            return Ok((0, total, 0));
+        };
+        let end = r.end.min(total);
+        if r.first >= end {
+            return Err(ExportError::EmptyRange {
+                first: r.first,
+                end: r.end,
+                total,
+            });
+        }
+        Ok((r.first, end, r.first.saturating_sub(r.lead_in)))
+    }
 }
 
 /// Makes the writer of a format the core library does not write (the editor's `.rrd`).
@@ -44,6 +81,8 @@ pub trait SinkFactory {
 #[derive(Clone, Debug)]
 pub struct ExportSummary {
     pub face: String,
+    /// The first frame written (0 unless a range was asked for).
+    pub first: usize,
     pub frames: usize,
     pub vertices: usize,
     pub triangles: usize,
@@ -98,20 +137,28 @@ pub fn export(
         return Err(ExportError::RrdNeedsEditor);
     }
     let start = Instant::now();
-    let frames = frame_count(track.duration(), job.fps);
+    let total = frame_count(track.duration(), job.fps);
+    let (first, end, lead_start) = FrameRange::resolve(job.range, total)?;
+    let frames = end - first;
     let mesh = ExportMesh::of(&face.model);
     let topology = FaceTopology::of(&face.name, &face.model);
     std::fs::create_dir_all(&job.out_dir).map_err(|e| ExportError::io(&job.out_dir, e))?;
     let mut staging = Staging::default();
     let report_path = job.out_dir.join(format!("{}.report.json", job.name));
     let mut report = ReportBuilder::new(&face.model, &job.name, job.fps, job.quality, job.contact);
+    let span = Span {
+        lead_start,
+        first,
+        end,
+        total,
+    };
     let result = (|| {
         let sinks = open_sinks(
             &mut staging,
             job,
             &mesh,
             &topology,
-            frames,
+            &span,
             extra,
             &face.name,
         )?;
@@ -119,7 +166,7 @@ pub fn export(
             face.clone(),
             track,
             job,
-            frames,
+            &span,
             sinks,
             &mut report,
             progress,
@@ -132,6 +179,7 @@ pub fn export(
             let outputs = staging.commit()?;
             Ok(ExportSummary {
                 face: face.name,
+                first,
                 frames,
                 vertices: mesh.vertex_count(),
                 triangles: mesh.triangles.len(),
@@ -163,14 +211,20 @@ fn open_sinks(
     job: &ExportJob,
     mesh: &ExportMesh,
     topology: &FaceTopology,
-    frames: usize,
+    span: &Span,
     extra: Option<&dyn SinkFactory>,
     face: &str,
 ) -> Result<Vec<Box<dyn FrameSink>>, ExportError> {
     let (dir, name) = (&job.out_dir, &job.name);
+    let (first, frames) = (span.first, span.end - span.first);
     let comment = format!(
-        "facesim export of track '{name}' on face '{face}', {frames} frames at {} fps, {} preset",
-        job.fps, job.quality
+        "facesim export of track '{name}' on face '{face}', frames {first}..{} of {} at {} fps, \
+         {} preset, contact {}",
+        span.end,
+        span.total,
+        job.fps,
+        job.quality,
+        if job.contact { "on" } else { "off" }
     );
     let mut formats: Vec<Format> = Vec::new();
     for f in &job.formats {
@@ -186,18 +240,20 @@ fn open_sinks(
                 let normals = staging.scratch(&target, "normals")?;
                 let temp = staging.output(target)?;
                 Box::new(super::usd::UsdWriter::create(
-                    &temp, &normals, mesh, frames, job.fps, &comment,
+                    &temp, &normals, mesh, first, frames, job.fps, &comment,
                 )?)
             }
             Format::Pc2 => {
                 let cache = staging.output(dir.join(format!("{name}.pc2")))?;
                 let obj = staging.output(dir.join(format!("{name}.obj")))?;
-                Box::new(super::pc2::Pc2Sink::create(&cache, &obj, mesh, frames)?)
+                Box::new(super::pc2::Pc2Sink::create(
+                    &cache, &obj, mesh, first, frames,
+                )?)
             }
             Format::Obj => {
                 let temp = staging.output(dir.join(format!("{name}_obj")))?;
                 Box::new(super::obj::ObjSequenceSink::create(
-                    &temp, name, mesh, frames, job.fps,
+                    &temp, name, mesh, span.total, job.fps,
                 )?)
             }
             Format::Gltf => {
@@ -205,7 +261,7 @@ fn open_sinks(
                 let targets = staging.scratch(&target, "targets")?;
                 let temp = staging.output(target)?;
                 Box::new(super::gltf::GltfWriter::create(
-                    &temp, &targets, mesh, frames, job.fps, &comment,
+                    &temp, &targets, mesh, first, frames, job.fps, &comment,
                 )?)
             }
             Format::Rrd => {
@@ -223,12 +279,22 @@ fn open_sinks(
     Ok(sinks)
 }
 
-/// Solves every frame in order through the session and hands it to the sinks.
+/// The frames an export solves: `lead_start..first` only to warm up, `first..end` written;
+/// `total` is the track's frame count.
+struct Span {
+    lead_start: usize,
+    first: usize,
+    end: usize,
+    total: usize,
+}
+
+/// Solves every frame in order through the session (the lead-in too) and hands the range's
+/// frames to the sinks.
 fn run_frames(
     face: SessionFace,
     track: &Track,
     job: &ExportJob,
-    frames: usize,
+    span: &Span,
     mut sinks: Vec<Box<dyn FrameSink>>,
     report: &mut ReportBuilder,
     progress: Progress<'_>,
@@ -245,9 +311,10 @@ fn run_frames(
     ])?;
     // A frame can take long at the final preset on a fine face; a stopped worker cannot.
     let timeout = Duration::from_secs(3600);
+    let frames = span.end - span.first;
     let (mut solve, mut capped, mut iterations) = (Duration::ZERO, 0, Vec::with_capacity(frames));
     let mut last_index = None;
-    for k in 0..frames {
+    for k in span.lead_start..span.end {
         let time = k as f64 / job.fps;
         let codes = track.sample(time).expect("the track has keys");
         let fail = |reason: String| ExportError::Frame {
@@ -264,6 +331,9 @@ fn run_frames(
         if let Some(error) = &frame.error {
             return Err(fail(error.clone()));
         }
+        if k < span.first {
+            continue;
+        }
         // Held codes (equal to the last frame's) publish no new frame: the same geometry.
         if last_index != Some(frame.index) {
             solve += Duration::from_secs_f64(frame.stats.solve_ms / 1e3);
@@ -275,7 +345,7 @@ fn run_frames(
         for sink in &mut sinks {
             sink.frame(k, &frame)?;
         }
-        progress(k + 1, frames);
+        progress(k + 1 - span.first, frames);
     }
     for sink in sinks {
         sink.finish()?;

@@ -95,6 +95,7 @@ fn a_short_track_exports_to_every_format_consistently() {
         fps: 10.0,
         quality: Quality::Interactive,
         contact: false,
+        range: None,
     };
 
     // rrd needs the editor binary.
@@ -328,4 +329,73 @@ fn the_report_marks_unconverged_and_crossing_frames() {
     );
     let crossing = report.frames.iter().filter(|f| f.crossings > 0).count();
     assert!(crossing >= 1 && report.crossing_frames == crossing);
+}
+
+/// A range of frames keeps their numbers, and with a lead-in back to the track's start it
+/// writes exactly the frames the whole export writes (every solve warm-starts from the last,
+/// so the same sequence of solves gives the same frames).
+#[test]
+fn a_range_of_frames_matches_the_whole_export() {
+    let dir = std::env::temp_dir().join(format!("facesim-export-range-{}", std::process::id()));
+    staging::remove_any(&dir).unwrap();
+    let track = short_track();
+    let job = |name: &str, range: Option<FrameRange>| ExportJob {
+        name: name.into(),
+        out_dir: dir.clone(),
+        formats: vec![Format::Pc2, Format::Usd, Format::Obj, Format::Gltf],
+        fps: 10.0,
+        quality: Quality::Interactive,
+        contact: false,
+        range,
+    };
+    let whole = export(neutral(), &track, &job("whole", None), None, &mut |_, _| {}).unwrap();
+    assert_eq!((whole.first, whole.frames), (0, 4));
+    let range = FrameRange {
+        first: 2,
+        end: 99,
+        lead_in: 2,
+    };
+    let part = export(
+        neutral(),
+        &track,
+        &job("part", Some(range)),
+        None,
+        &mut |_, _| {},
+    )
+    .unwrap();
+    assert_eq!((part.first, part.frames), (2, 2), "frames 2 and 3 of 0..4");
+    let (_, all) = pc2::read(&dir.join("whole.pc2")).unwrap();
+    let (header, some) = pc2::read(&dir.join("part.pc2")).unwrap();
+    assert_eq!(header.start_frame, 2.0);
+    assert_eq!(some[..], all[2..], "the lead-in reproduces the warm starts");
+    assert_eq!(
+        listing(&dir.join("part_obj")),
+        ["part_0002.obj", "part_0003.obj"]
+    );
+    let usda = std::fs::read_to_string(dir.join("part.usda")).unwrap();
+    assert!(usda.contains("startTimeCode = 2") && usda.contains("endTimeCode = 3"));
+    let report: report::ExportReport =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("part.report.json")).unwrap())
+            .unwrap();
+    let numbers: Vec<usize> = report.frames.iter().map(|f| f.frame).collect();
+    assert_eq!(numbers, [2, 3]);
+    let (json, _) = gltf::read_glb(&dir.join("part.glb")).unwrap();
+    let times = &json["animations"][0]["samplers"][0]["input"];
+    let times = &json["accessors"][times.as_u64().unwrap() as usize];
+    assert_eq!(times["min"][0].as_f64().unwrap() as f32, 0.2);
+
+    let past = FrameRange {
+        first: 10,
+        end: 20,
+        lead_in: 0,
+    };
+    let err = export(
+        neutral(),
+        &track,
+        &job("none", Some(past)),
+        None,
+        &mut |_, _| {},
+    );
+    assert!(matches!(err, Err(ExportError::EmptyRange { total: 4, .. })));
+    staging::remove_any(&dir).unwrap();
 }

@@ -1,7 +1,8 @@
 //! USD output as a text layer (`.usda`): one `Mesh` prim with the render surface's topology,
 //! rest `points` and `normals`, the rig's texture coordinates as `primvars:st` (face-varying,
 //! indexed), one `GeomSubset` per part (the rig's material groups), and time samples of `points`, `normals` and `extent` at every
-//! frame (`timeCodesPerSecond` = the export's fps, time code = frame number).
+//! frame (`timeCodesPerSecond` = the export's fps, time code = frame number; a range of a
+//! track's frames keeps their numbers).
 //!
 //! Units: centimetres, declared with `metersPerUnit = 0.01`; Y is up. Points are printed to
 //! 1e-5 cm (0.1 µm), normals to 1e-4.
@@ -21,6 +22,8 @@ pub struct UsdWriter {
     normals: Out,
     normals_path: std::path::PathBuf,
     vertices: usize,
+    /// The first frame's number (its time code).
+    first: usize,
     frames: usize,
     written: usize,
     extents: Vec<[[f32; 3]; 2]>,
@@ -146,11 +149,13 @@ const NORMAL_DECIMALS: usize = 4;
 const UV_DECIMALS: usize = 6;
 
 impl UsdWriter {
-    /// Starts the layer at `path` (the normals' scratch file at `normals_scratch`).
+    /// Starts the layer at `path` (the normals' scratch file at `normals_scratch`) for frames
+    /// `first..first + frames` (their frame numbers are their time codes).
     pub fn create(
         path: &Path,
         normals_scratch: &Path,
         mesh: &ExportMesh,
+        first: usize,
         frames: usize,
         fps: f64,
         comment: &str,
@@ -173,14 +178,14 @@ impl UsdWriter {
         };
         let header = format!(
             "#usda 1.0\n(\n    defaultPrim = \"Face\"\n    doc = \"{doc}\"\n    metersPerUnit = 0.01\n    upAxis = \"Y\"\n    \
-             timeCodesPerSecond = {fps}\n    framesPerSecond = {fps}\n    startTimeCode = 0\n    endTimeCode = {end}\n)\n\n\
+             timeCodesPerSecond = {fps}\n    framesPerSecond = {fps}\n    startTimeCode = {first}\n    endTimeCode = {end}\n)\n\n\
              def Xform \"Face\" (\n    kind = \"component\"\n)\n{{\n    def Mesh \"Surface\"\n    {{\n        \
              uniform token subdivisionScheme = \"none\"\n        uniform token orientation = \"rightHanded\"\n        \
              int[] faceVertexCounts = [{counts}]\n        int[] faceVertexIndices = [{indices}]\n        \
              float3[] extent = {rest_extent}\n{st}{family}        normal3f[] normals = {rest_normals} (\n            interpolation = \"vertex\"\n        )\n        \
              point3f[] points = {rest_points}\n        point3f[] points.timeSamples = {{\n",
             doc = comment.replace('"', "'"),
-            end = frames.saturating_sub(1),
+            end = (first + frames).saturating_sub(1),
             rest_extent = array(&rest_extent, POINT_DECIMALS),
             rest_normals = array(&mesh.rest_normals, NORMAL_DECIMALS),
             rest_points = array(&mesh.rest, POINT_DECIMALS),
@@ -191,6 +196,7 @@ impl UsdWriter {
             normals: Out::create(normals_scratch)?,
             normals_path: normals_scratch.to_path_buf(),
             vertices: mesh.vertex_count(),
+            first,
             frames,
             written: 0,
             extents: Vec::with_capacity(frames),
@@ -211,7 +217,7 @@ impl UsdWriter {
                 reason: format!("more than the {} frames announced", self.frames),
             });
         }
-        let k = self.written;
+        let k = self.first + self.written;
         self.line.clear();
         self.line.push_str(&format!("            {k}: "));
         self.line.push_str(&array(positions, POINT_DECIMALS));
@@ -242,6 +248,7 @@ impl UsdWriter {
             .map_err(|e| ExportError::io(&self.out.path, e))?;
         let mut tail = String::from("        }\n        float3[] extent.timeSamples = {\n");
         for (k, e) in self.extents.iter().enumerate() {
+            let k = self.first + k;
             tail.push_str(&format!("            {k}: {},\n", array(e, POINT_DECIMALS)));
         }
         tail.push_str("        }\n");
@@ -295,7 +302,7 @@ mod tests {
         std::fs::create_dir_all(&dir).unwrap();
         let (path, scratch) = (dir.join("a.usda"), dir.join("a.normals"));
         let mesh = test_mesh::square();
-        let mut w = UsdWriter::create(&path, &scratch, &mesh, 3, 24.0, "test").unwrap();
+        let mut w = UsdWriter::create(&path, &scratch, &mesh, 0, 3, 24.0, "test").unwrap();
         for k in 0..3 {
             let (p, n) = test_mesh::frame(&mesh, k);
             w.write_frame(&p, &n).unwrap();
@@ -322,6 +329,18 @@ mod tests {
         );
         // Balanced braces: the layer closes.
         assert_eq!(text.matches('{').count(), text.matches('}').count());
+
+        // A range of a track's frames keeps their numbers as time codes.
+        let mut w = UsdWriter::create(&path, &scratch, &mesh, 10, 2, 24.0, "test").unwrap();
+        for k in 10..12 {
+            let (p, n) = test_mesh::frame(&mesh, k);
+            w.write_frame(&p, &n).unwrap();
+        }
+        w.finish().unwrap();
+        let text = std::fs::read_to_string(&path).unwrap();
+        assert!(text.contains("startTimeCode = 10") && text.contains("endTimeCode = 11"));
+        assert_eq!(text.matches("            11: ").count(), 3);
+        assert_eq!(text.matches("            1: ").count(), 0);
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }
