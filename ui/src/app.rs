@@ -257,7 +257,8 @@ impl EditorApp {
     }
 
     fn timeline(&mut self, ui: &mut egui::Ui) {
-        let codes = self.session.inputs().codes;
+        let inputs = self.session.inputs();
+        let (codes, contact) = (inputs.codes, inputs.contact);
         let t = &mut self.timeline;
         ui.horizontal(|ui| {
             let playing = t.playing.is_some();
@@ -300,7 +301,12 @@ impl EditorApp {
             ui.label(format!("{} keys", t.track.keys.len()));
             let label = ui.label("track file");
             ui.text_edit_singleline(&mut t.path).labelled_by(label.id);
-            if ui.button("save").clicked() {
+            if ui
+                .button("save")
+                .on_hover_text("the track keeps the contact setting, for its export")
+                .clicked()
+            {
+                t.track.contact = Some(contact);
                 t.message = match t.track.save(&PathBuf::from(&t.path)) {
                     Ok(()) => format!("saved {}", t.path),
                     Err(e) => e.to_string(),

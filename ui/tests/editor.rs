@@ -224,3 +224,28 @@ fn at_full_jaw_opening_the_mouth_shows_the_teeth() {
         path.display()
     );
 }
+
+/// The timeline's track keeps the artist's contact setting, so `facesim export` renders it
+/// with contact as it was edited.
+#[test]
+fn a_saved_track_keeps_the_contact_setting() {
+    let session: Arc<dyn SessionHandle> =
+        Arc::new(Session::new(sample(), Quality::Interactive).unwrap());
+    let mut harness = Harness::builder()
+        .with_size(egui::vec2(1200.0, 800.0))
+        .wgpu()
+        .build_eframe(|cc| EditorApp::new(cc, session.clone()));
+    wait_for(&mut harness, |app| app.last_frame.is_some());
+    let path = std::env::temp_dir().join(format!("facesim-track-ui-{}.json", std::process::id()));
+    harness.state_mut().timeline.path = path.display().to_string();
+    harness.get_by_label("lip and teeth contact").click();
+    harness.run_steps(2);
+    harness.get_by_label("key").click();
+    harness.run_steps(2);
+    harness.get_by_label("save").click();
+    harness.run_steps(2);
+    let track = facesim::session::track::Track::load(&path).expect("the saved track");
+    assert_eq!(track.contact, Some(true));
+    assert_eq!(track.keys.len(), 1);
+    std::fs::remove_file(&path).unwrap();
+}
