@@ -44,13 +44,15 @@ pub struct FrameRange {
 }
 
 impl FrameRange {
-    /// The frames of a track of `total` frames this range writes, and where its lead-in starts.
-    fn resolve(
-        range: Option<FrameRange>,
-        total: usize,
-    ) -> Result<(usize, usize, usize), ExportError> {
+    /// What an export of a track of `total` frames solves and writes for `range`.
+    fn resolve(range: Option<FrameRange>, total: usize) -> Result<Span, ExportError> {
         let Some(r) = range else {
-            return Ok((0, total, 0));
+            return Ok(Span {
+                lead_start: 0,
+                first: 0,
+                end: total,
+                total,
+            });
         };
         let end = r.end.min(total);
         if r.first >= end {
@@ -60,7 +62,12 @@ impl FrameRange {
                 total,
             });
         }
-        Ok((r.first, end, r.first.saturating_sub(r.lead_in)))
+        Ok(Span {
+            lead_start: r.first.saturating_sub(r.lead_in),
+            first: r.first,
+            end,
+            total,
+        })
     }
 }
 
@@ -137,21 +144,14 @@ pub fn export(
         return Err(ExportError::RrdNeedsEditor);
     }
     let start = Instant::now();
-    let total = frame_count(track.duration(), job.fps);
-    let (first, end, lead_start) = FrameRange::resolve(job.range, total)?;
-    let frames = end - first;
+    let span = FrameRange::resolve(job.range, frame_count(track.duration(), job.fps))?;
+    let (first, frames) = (span.first, span.frames());
     let mesh = ExportMesh::of(&face.model);
     let topology = FaceTopology::of(&face.name, &face.model);
     std::fs::create_dir_all(&job.out_dir).map_err(|e| ExportError::io(&job.out_dir, e))?;
     let mut staging = Staging::default();
     let report_path = job.out_dir.join(format!("{}.report.json", job.name));
     let mut report = ReportBuilder::new(&face.model, &job.name, job.fps, job.quality, job.contact);
-    let span = Span {
-        lead_start,
-        first,
-        end,
-        total,
-    };
     let result = (|| {
         let sinks = open_sinks(
             &mut staging,
@@ -216,7 +216,7 @@ fn open_sinks(
     face: &str,
 ) -> Result<Vec<Box<dyn FrameSink>>, ExportError> {
     let (dir, name) = (&job.out_dir, &job.name);
-    let (first, frames) = (span.first, span.end - span.first);
+    let (first, frames) = (span.first, span.frames());
     let comment = format!(
         "facesim export of track '{name}' on face '{face}', frames {first}..{} of {} at {} fps, \
          {} preset, contact {}",
@@ -288,6 +288,13 @@ struct Span {
     total: usize,
 }
 
+impl Span {
+    /// The frames written.
+    fn frames(&self) -> usize {
+        self.end - self.first
+    }
+}
+
 /// Solves every frame in order through the session (the lead-in too) and hands the range's
 /// frames to the sinks.
 fn run_frames(
@@ -311,7 +318,7 @@ fn run_frames(
     ])?;
     // A frame can take long at the final preset on a fine face; a stopped worker cannot.
     let timeout = Duration::from_secs(3600);
-    let frames = span.end - span.first;
+    let frames = span.frames();
     let (mut solve, mut capped, mut iterations) = (Duration::ZERO, 0, Vec::with_capacity(frames));
     let mut last_index = None;
     for k in span.lead_start..span.end {
