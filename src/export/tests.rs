@@ -31,6 +31,19 @@ fn neutral() -> crate::session::SessionFace {
         .unwrap()
 }
 
+/// Every core format of all frames at 10 fps, interactive, without contact, into `dir`.
+fn core_job(name: &str, dir: &Path) -> ExportJob {
+    ExportJob {
+        name: name.into(),
+        out_dir: dir.to_path_buf(),
+        formats: vec![Format::Usd, Format::Pc2, Format::Obj, Format::Gltf],
+        fps: 10.0,
+        quality: Quality::Interactive,
+        contact: false,
+        range: None,
+    }
+}
+
 /// What an export of the short track into every core format leaves in its folder.
 const SHORT_OUTPUTS: [&str; 6] = [
     "short.glb",
@@ -88,15 +101,7 @@ fn a_short_track_exports_to_every_format_consistently() {
     let face = neutral();
     let mesh = ExportMesh::of(&face.model);
     let track = short_track();
-    let job = ExportJob {
-        name: "short".into(),
-        out_dir: dir.clone(),
-        formats: vec![Format::Usd, Format::Pc2, Format::Obj, Format::Gltf],
-        fps: 10.0,
-        quality: Quality::Interactive,
-        contact: false,
-        range: None,
-    };
+    let job = core_job("short", &dir);
 
     // rrd needs the editor binary.
     let rrd = ExportJob {
@@ -340,13 +345,8 @@ fn a_range_of_frames_matches_the_whole_export() {
     staging::remove_any(&dir).unwrap();
     let track = short_track();
     let job = |name: &str, range: Option<FrameRange>| ExportJob {
-        name: name.into(),
-        out_dir: dir.clone(),
-        formats: vec![Format::Pc2, Format::Usd, Format::Obj, Format::Gltf],
-        fps: 10.0,
-        quality: Quality::Interactive,
-        contact: false,
         range,
+        ..core_job(name, &dir)
     };
     let whole = export(neutral(), &track, &job("whole", None), None, &mut |_, _| {}).unwrap();
     assert_eq!((whole.first, whole.frames), (0, 4));

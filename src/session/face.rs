@@ -137,16 +137,8 @@ pub fn vertex_colors(model: &FaceModel, rigid: &[bool]) -> Vec<[u8; 3]> {
         v.dedup();
         v
     };
-    for (name, color) in [
-        ("M_ScleraLeft", SCLERA_COLOR),
-        ("M_ScleraRight", SCLERA_COLOR),
-        ("M_IrisLeft", IRIS_COLOR),
-        ("M_IrisRight", IRIS_COLOR),
-        ("M_EyeLashes", LASH_COLOR),
-    ] {
-        for v in vertices_of(name) {
-            colors[v] = color;
-        }
+    for v in vertices_of("M_EyeLashes") {
+        colors[v] = LASH_COLOR;
     }
     // The rig's iris lies under the eyeball's clear front (its material is see-through
     // there), so an opaque eyeball hides it: paint the eyeball where it covers the iris.
@@ -155,6 +147,12 @@ pub fn vertex_colors(model: &FaceModel, rigid: &[bool]) -> Vec<[u8; 3]> {
             vertices_of(&format!("M_Sclera{side}")),
             vertices_of(&format!("M_Iris{side}")),
         );
+        for &v in &sclera {
+            colors[v] = SCLERA_COLOR;
+        }
+        for &v in &iris {
+            colors[v] = IRIS_COLOR;
+        }
         let centre = |vs: &[usize]| {
             vs.iter()
                 .map(|&v| render.rest[v].coords)

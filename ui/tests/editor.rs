@@ -36,6 +36,15 @@ fn pixels_changed(a: &[u8], b: &[u8]) -> usize {
         .count()
 }
 
+/// The editor app on `session`, rendered in software at 1200 × 800.
+fn editor(session: &Arc<dyn SessionHandle>) -> Harness<'static, EditorApp> {
+    let session = session.clone();
+    Harness::builder()
+        .with_size(egui::vec2(1200.0, 800.0))
+        .wgpu()
+        .build_eframe(move |cc| EditorApp::new(cc, session))
+}
+
 fn wait_for(harness: &mut Harness<'_, EditorApp>, done: impl Fn(&EditorApp) -> bool) {
     let deadline = Instant::now() + Duration::from_secs(120);
     while !done(harness.state()) {
@@ -91,10 +100,7 @@ fn the_slider_drives_a_remote_session() {
 }
 
 fn jaw_slider_changes_the_face(session: Arc<dyn SessionHandle>) {
-    let mut harness = Harness::builder()
-        .with_size(egui::vec2(1200.0, 800.0))
-        .wgpu()
-        .build_eframe(|cc| EditorApp::new(cc, session.clone()));
+    let mut harness = editor(&session);
     wait_for(&mut harness, |app| app.last_frame.is_some());
     harness.run_steps(3);
     let before_frame = harness.state().last_frame.clone().unwrap();
@@ -137,10 +143,7 @@ fn the_mapping_heatmap_colours_the_identity_on_screen() {
     session
         .submit(&[facesim::session::Request::Face(1)])
         .unwrap();
-    let mut harness = Harness::builder()
-        .with_size(egui::vec2(1200.0, 800.0))
-        .wgpu()
-        .build_eframe(|cc| EditorApp::new(cc, session.clone()));
+    let mut harness = editor(&session);
     wait_for(&mut harness, |app| {
         app.last_frame
             .as_ref()
@@ -177,10 +180,7 @@ fn the_mapping_heatmap_colours_the_identity_on_screen() {
 fn at_full_jaw_opening_the_mouth_shows_the_teeth() {
     let session: Arc<dyn SessionHandle> =
         Arc::new(Session::new(sample(), Quality::Interactive).unwrap());
-    let mut harness = Harness::builder()
-        .with_size(egui::vec2(1200.0, 800.0))
-        .wgpu()
-        .build_eframe(|cc| EditorApp::new(cc, session.clone()));
+    let mut harness = editor(&session);
     wait_for(&mut harness, |app| app.last_frame.is_some());
     harness.run_steps(3);
     let inside_shown = |harness: &mut Harness<'_, EditorApp>| {
@@ -231,10 +231,7 @@ fn at_full_jaw_opening_the_mouth_shows_the_teeth() {
 fn a_saved_track_keeps_the_contact_setting() {
     let session: Arc<dyn SessionHandle> =
         Arc::new(Session::new(sample(), Quality::Interactive).unwrap());
-    let mut harness = Harness::builder()
-        .with_size(egui::vec2(1200.0, 800.0))
-        .wgpu()
-        .build_eframe(|cc| EditorApp::new(cc, session.clone()));
+    let mut harness = editor(&session);
     wait_for(&mut harness, |app| app.last_frame.is_some());
     let path = std::env::temp_dir().join(format!("facesim-track-ui-{}.json", std::process::id()));
     harness.state_mut().timeline.path = path.display().to_string();
