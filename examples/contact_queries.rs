@@ -11,8 +11,9 @@ use std::time::Instant;
 use anyhow::{Context, Result};
 use facesim::bench::contact::drag_pose;
 use facesim::bench::mouth_poses::LipField;
-use facesim::contact::face::{FaceContact, FaceContactSettings};
+use facesim::contact::surface::FaceContact;
 use facesim::contact::{Candidates, FixedPrimitives, VerletList};
+use facesim::model::contact_region::FaceContactSettings;
 use facesim::sim::{ContactGate, Quality, SolveSettings};
 
 const REPEATS: usize = 21;

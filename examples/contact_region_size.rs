@@ -11,8 +11,9 @@
 
 use anyhow::{Context, Result};
 use facesim::bench::mouth_poses::LipField;
-use facesim::contact::face::{FaceContact, FaceContactSettings};
+use facesim::contact::surface::FaceContact;
 use facesim::model::FaceModel;
+use facesim::model::contact_region::FaceContactSettings;
 use facesim::sim::{ContactGate, Quality, SolveSettings};
 
 const FRAMES: usize = 8;

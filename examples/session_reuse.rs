@@ -7,8 +7,9 @@
 
 use std::time::{Duration, Instant};
 
-use facesim::contact::face::{FaceContact, FaceContactSettings};
+use facesim::contact::surface::FaceContact;
 use facesim::drive::Codes;
+use facesim::model::contact_region::FaceContactSettings;
 use facesim::rig::ExpressionCode;
 use facesim::session::{Display, Request, Session};
 use facesim::sim::{Quality, SolveSettings};

@@ -1,8 +1,8 @@
 //! The README's library example: solve a face-sized slab, then warm-start the next frame.
 //! `cargo run --release --example solve_slab`
 
-use facesim::scene::SlabScene;
 use facesim::sim::{BonePose, Quality, RigidMotion, SimConfig, Simulator};
+use facesim::slab::SlabScene;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let scene = SlabScene::new(20_000, 0.2, 1)?;

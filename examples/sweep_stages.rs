@@ -10,7 +10,8 @@
 
 use anyhow::{Context, Result, bail};
 use facesim::bench::contact_sweep::random_codes;
-use facesim::contact::face::{FaceContact, FaceContactSettings};
+use facesim::contact::surface::FaceContact;
+use facesim::model::contact_region::FaceContactSettings;
 use facesim::sim::{BonePose, Quality};
 
 fn main() -> Result<()> {

@@ -348,7 +348,7 @@ pub fn write_sample(
     let manifest = Manifest {
         version: MANIFEST_VERSION,
         source: format!(
-            "ICT-FaceKit light (MIT, see {NOTICE}); rebuild with `cargo run --release -p facesim -- \
+            "ICT-FaceKit light (MIT, see {NOTICE}); rebuild with `cargo run --release -p facesim-cli -- \
              sample --out {SAMPLE_DIR}`, then `… train-mapping --faces {SAMPLE_DIR}`"
         ),
         faces: faces.into_iter().map(|f| f.entry).collect(),

@@ -8,7 +8,8 @@ use std::path::PathBuf;
 use std::sync::OnceLock;
 
 use facesim::bench::mouth_poses::{LipField, MouthPose, random_poses, run_sequence};
-use facesim::contact::face::{FaceContact, FaceContactSettings};
+use facesim::contact::surface::FaceContact;
+use facesim::model::contact_region::FaceContactSettings;
 use facesim::model::{FaceModel, Lod, build_face};
 use facesim::rig::FaceRig;
 use facesim::sim::{BonePose, Quality, SimState, Simulator, SolveSettings, SymTensor};

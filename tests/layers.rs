@@ -1,7 +1,8 @@
 //! ARCHITECTURE.md's "never" rules, checked mechanically:
-//! - the core crate depends on no UI or viewer crate (egui, eframe, wgpu, winit, rerun);
+//! - the core crate depends on no UI or viewer crate (egui, eframe, wgpu, winit, rerun) and no
+//!   command-line crate (clap, indicatif, anyhow);
 //! - modules import only modules of lower layers (the IPC kit nothing face-specific, the solver
-//!   no face, rig or session), except the listed places the contact issue re-lays.
+//!   no face, rig or session).
 //!
 //! Imports are the `crate::<module>` paths of non-test code (a file's text up to its first
 //! `#[cfg(test)]`; `tests.rs` and `test_support` files are test code).
@@ -15,23 +16,15 @@ const LAYERS: &[&[&str]] = &[
     &["geometry", "nn", "plot", "stats", "table"],
     &["contact"],
     &["sim"],
-    &["scene", "rig"],
+    &["slab", "rig"],
     &["model"],
     &["drive", "mapping"],
+    &["sequence"],
     &["session"],
     &["sample"],
     &["generative"],
     &["export"],
     &["bench"],
-];
-
-/// Imports against the layers that the contact issue removes when it re-lays `src/sim/` and
-/// the face's contact surface (`contact/face.rs`, built from a `FaceModel` and posed with the
-/// bones): `(file, imported module)`.
-const KNOWN: &[(&str, &str)] = &[
-    ("contact/face.rs", "model"),
-    ("contact/face.rs", "rig"),
-    ("contact/face.rs", "sim"),
 ];
 
 fn layer_of(module: &str) -> Option<usize> {
@@ -71,7 +64,7 @@ fn modules_import_only_from_lower_layers() {
     let src = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("src");
     let mut files = Vec::new();
     rust_files(&src, &mut files);
-    let (mut against, mut known_seen) = (Vec::new(), BTreeSet::new());
+    let mut against = Vec::new();
     for file in &files {
         let rel = file
             .strip_prefix(&src)
@@ -95,11 +88,7 @@ fn modules_import_only_from_lower_layers() {
             if target == module || theirs < own {
                 continue;
             }
-            if KNOWN.contains(&(rel.as_str(), target.as_str())) {
-                known_seen.insert((rel.clone(), target));
-            } else {
-                against.push(format!("{rel} imports crate::{target}"));
-            }
+            against.push(format!("{rel} imports crate::{target}"));
         }
     }
     assert!(
@@ -107,16 +96,10 @@ fn modules_import_only_from_lower_layers() {
         "imports against the layers (ARCHITECTURE.md):\n{}",
         against.join("\n")
     );
-    // A known exception that went away must leave the list too.
-    let stale: Vec<_> = KNOWN
-        .iter()
-        .filter(|(f, t)| !known_seen.contains(&(f.to_string(), t.to_string())))
-        .collect();
-    assert!(stale.is_empty(), "fixed, remove from KNOWN: {stale:?}");
 }
 
 #[test]
-fn the_core_depends_on_no_ui_or_viewer_crate() {
+fn the_core_depends_on_no_ui_viewer_or_command_line_crate() {
     let out = Command::new(env!("CARGO"))
         .args([
             "tree",
@@ -138,7 +121,19 @@ fn the_core_depends_on_no_ui_or_viewer_crate() {
     );
     let tree = String::from_utf8_lossy(&out.stdout);
     assert!(tree.lines().any(|l| l.starts_with("nalgebra ")), "{tree}");
-    let banned = ["egui", "eframe", "wgpu", "winit", "rerun", "re_sdk"];
+    // UI and viewer crates live in `ui/`; arguments, progress bars and error context in the
+    // binaries (`cli/`).
+    let banned = [
+        "egui",
+        "eframe",
+        "wgpu",
+        "winit",
+        "rerun",
+        "re_sdk",
+        "clap",
+        "indicatif",
+        "anyhow",
+    ];
     let found: BTreeSet<&str> = tree
         .lines()
         .filter_map(|l| l.split_whitespace().next())

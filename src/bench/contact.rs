@@ -17,8 +17,9 @@ use serde::Serialize;
 
 use super::median;
 use super::mouth_poses::{FrameOutcome, LipField, MouthPose, run_sequence};
-use crate::contact::face::{FaceContact, FaceContactSettings};
+use crate::contact::surface::FaceContact;
 use crate::model::FaceModel;
+use crate::model::contact_region::FaceContactSettings;
 use crate::sim::{
     ContactGate, ContactStep, Quality, SimError, Simulator, SolveSettings, SolveStats,
 };

@@ -8,17 +8,19 @@
 //! too is asked too much by its codes (the actuation model's business), one that inverts only
 //! with contact is contact's.
 
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
-use crate::contact::face::{FaceContact, FaceContactSettings};
+use crate::contact::surface::FaceContact;
 use crate::drive::{ActuationModel, Codes};
 use crate::model::FaceModel;
+use crate::model::contact_region::FaceContactSettings;
 use crate::rig::ExpressionCode;
-use crate::sim::{Quality, SimError, SimState, Simulator, SolveSettings, SolveStats};
+use crate::sequence::{FrameFailure, Recovery, Sequence};
+use crate::sim::{Quality, SimError, SolveSettings, SolveStats};
 
 /// Which solves a sweep runs per code.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -159,7 +161,11 @@ struct Tally {
 }
 
 impl Tally {
-    fn record(&mut self, result: &Result<SolveStats, SimError>, time: Duration) -> FrameOutcome {
+    fn record(
+        &mut self,
+        result: &Result<SolveStats, FrameFailure>,
+        time: Duration,
+    ) -> FrameOutcome {
         let c = &mut self.counts;
         c.frames += 1;
         self.times.push(time);
@@ -174,12 +180,12 @@ impl Tally {
                     FrameOutcome::Unconverged
                 }
             }
-            Err(SimError::Inverted { count, .. }) => {
+            Err(FrameFailure::Solve(SimError::Inverted { count, .. })) => {
                 c.inverted += 1;
                 self.inverted_elements.push(*count);
                 FrameOutcome::Inverted
             }
-            Err(SimError::Intersecting { .. }) => {
+            Err(FrameFailure::Solve(SimError::Intersecting { .. })) => {
                 c.intersecting += 1;
                 FrameOutcome::Intersecting
             }
@@ -249,12 +255,7 @@ pub fn sweep(
         contact: false,
         ..on
     };
-    let solve = |sim: &Simulator, a: &crate::drive::Actuation, s: &mut SimState, set| {
-        let start = std::time::Instant::now();
-        let r = sim.solve(&a.tensors, &a.bones(), s, set);
-        (r, start.elapsed())
-    };
-    let mut state = sim.rest_state();
+    let mut sequence = Sequence::new(&sim).with_recovery(Recovery::Rest);
     let (mut with, mut without) = (Tally::default(), Tally::default());
     let mut report = SweepReport {
         mode,
@@ -262,7 +263,7 @@ pub fn sweep(
     };
     let mut tell = |frame: usize,
                     contact: bool,
-                    r: &Result<SolveStats, SimError>,
+                    r: &Result<SolveStats, FrameFailure>,
                     time: Duration,
                     outcome: FrameOutcome| {
         on_solve(
@@ -281,25 +282,22 @@ pub fn sweep(
         let a = actuation
             .actuate(c)
             .map_err(|e| SimError::Setup(format!("actuation: {e}")))?;
-        let mut failed = false;
+        let bones = a.bones();
         let off_outcome = (mode != SweepMode::Contact).then(|| {
-            let mut copy;
-            let s = if mode == SweepMode::Compare {
-                copy = state.clone();
-                &mut copy
+            let start = Instant::now();
+            let r = if mode == SweepMode::Compare {
+                sequence.solve_aside(&a.tensors, &bones, &off).0
             } else {
-                &mut state
+                sequence.solve(&a.tensors, &bones, &off)
             };
-            let (r, t) = solve(&sim, &a, s, &off);
-            if mode == SweepMode::NoContact {
-                failed = r.is_err();
-            }
+            let t = start.elapsed();
             let outcome = without.record(&r, t);
             tell(frame, false, &r, t, outcome)
         });
         let on_outcome = (mode != SweepMode::NoContact).then(|| {
-            let (r, t) = solve(&sim, &a, &mut state, &on);
-            failed = r.is_err();
+            let start = Instant::now();
+            let r = sequence.solve(&a.tensors, &bones, &on);
+            let t = start.elapsed();
             let outcome = with.record(&r, t);
             tell(frame, true, &r, t, outcome)
         });
@@ -311,9 +309,6 @@ pub fn sweep(
             }
         }
         report.outcomes.push((on_outcome, off_outcome));
-        if failed {
-            state = sim.rest_state();
-        }
     }
     report.contact = (mode != SweepMode::NoContact).then(|| with.finish());
     report.no_contact = (mode != SweepMode::Contact).then(|| without.finish());

@@ -17,15 +17,16 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
-use crate::contact::face::{FaceContact, FaceContactSettings};
+use crate::contact::surface::FaceContact;
 use crate::drive::{ActuationModel, Codes};
 use crate::model::FaceModel;
+use crate::model::contact_region::FaceContactSettings;
 use crate::rig::ExpressionCode;
 use crate::rig::style::StyleCode;
 use crate::sim::{SimError, SolveSettings};
 use crate::table::Table;
 
-use super::sequence::solve_codes;
+use crate::sequence::{FrameFailure, solve_codes};
 
 /// The drag each slider makes, in units of its range: 0 → 1 → 3 → 0 → −1 → −3 → 0.
 const DRAG: [f64; 7] = [0.0, 1.0, 3.0, 0.0, -1.0, -3.0, 0.0];
@@ -162,7 +163,6 @@ pub fn run(
         solve_codes(&sim, actuation, &case.codes, settings, |frame, _| {
             progress(case.name, frame.index + 1, case.codes.len());
             ms.push(frame.ms);
-            r.non_finite += usize::from(!frame.finite);
             match &frame.outcome {
                 Ok(stats) => {
                     r.max_iterations = r.max_iterations.max(stats.iterations);
@@ -172,6 +172,7 @@ pub fn run(
                         r.unconverged += 1;
                     }
                 }
+                Err(FrameFailure::NonFinite) => r.non_finite += 1,
                 Err(e) => {
                     if e.inverted() {
                         r.inverted += 1;

@@ -11,11 +11,10 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
-use crate::contact::face::FaceContact;
+use crate::contact::surface::FaceContact;
 use crate::model::FaceModel;
-use crate::sim::{
-    BonePose, RigidMotion, SimError, SimState, Simulator, SolveSettings, SolveStats, SymTensor,
-};
+use crate::sequence::{Recovery, Sequence};
+use crate::sim::{BonePose, RigidMotion, Simulator, SolveSettings, SolveStats, SymTensor};
 
 /// A synthetic mouth pose. `0` everywhere is the rest face; the usual range of each value is
 /// `[0, 1]` (`[−1, 1]` for `roll` and `jaw_open`), and tests go past it.
@@ -122,17 +121,15 @@ pub fn run_sequence(
     settings: &SolveSettings,
     mut inputs: impl FnMut(usize) -> (Vec<SymTensor>, BonePose),
 ) -> Vec<FrameOutcome> {
-    let mut state: SimState = sim.rest_state();
+    let mut sequence = Sequence::new(sim).with_recovery(Recovery::Rest);
     (0..count)
         .map(|frame| {
             let (actuations, bones) = inputs(frame);
-            let result = sim.solve(&actuations, &bones, &mut state, settings);
-            if result.is_err() || !state.flat_positions().iter().all(|v| v.is_finite()) {
-                state = sim.rest_state();
-            }
             FrameOutcome {
                 frame,
-                result: result.map_err(|e: SimError| e.to_string()),
+                result: sequence
+                    .solve(&actuations, &bones, settings)
+                    .map_err(|e| e.to_string()),
             }
         })
         .collect()

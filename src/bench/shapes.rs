@@ -15,9 +15,10 @@ use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
 
-use crate::contact::face::{FaceContact, FaceContactSettings};
+use crate::contact::surface::FaceContact;
 use crate::drive::{ActuationModel, Codes};
 use crate::model::audit::CrossingAudit;
+use crate::model::contact_region::FaceContactSettings;
 use crate::model::{FaceModel, target};
 use crate::rig::{ExpressionCode, FaceRig, Region};
 use crate::sim::{SimError, SolveSettings, Termination};

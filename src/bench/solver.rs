@@ -6,9 +6,9 @@ use std::time::{Duration, Instant};
 use serde::Serialize;
 
 use super::median;
-use crate::scene::SlabScene;
 use crate::sim::global_matrix::GlobalMatrix;
 use crate::sim::{BonePose, SimConfig, SimError, SimState, Simulator, SolveSettings, SymTensor};
+use crate::slab::SlabScene;
 use crate::table::Table;
 
 /// Contraction of the benchmark's actuation field, and its change for warm-started solves.

@@ -16,8 +16,9 @@
 use nalgebra::Point3;
 use serde::{Deserialize, Serialize};
 
-use crate::contact::face::{FaceContact, FaceContactSettings};
+use crate::contact::surface::FaceContact;
 use crate::drive::{ActuationModel, Codes};
+use crate::model::contact_region::FaceContactSettings;
 use crate::model::{FaceModel, Lod};
 use crate::plot::Canvas;
 use crate::plot::scatter::{Chart, PALETTE, Series, draw};
@@ -26,7 +27,7 @@ use crate::sim::{ContactGate, Quality, SimError, Simulator, SolveSettings};
 use crate::table::Table;
 
 use super::percentile;
-use super::sequence::solve_codes;
+use crate::sequence::solve_codes;
 
 /// A face at one level of detail and the model that drives it.
 pub struct TradeoffFace<'a> {
@@ -110,6 +111,65 @@ pub struct Run {
     pub skipped: usize,
 }
 
+/// Why [`neutral_face`] could not give the face.
+#[derive(Debug, thiserror::Error)]
+pub enum FaceCacheError {
+    #[error(transparent)]
+    File(#[from] crate::model::file::FileError),
+    #[error(transparent)]
+    Rig(#[from] crate::rig::RigError),
+    #[error("building the neutral face: {0}")]
+    Build(#[from] crate::model::BuildError),
+    #[error("fitting the actuation basis: {0}")]
+    Basis(#[from] crate::drive::basis::BasisError),
+    #[error("{path}: {source}")]
+    Io {
+        path: std::path::PathBuf,
+        source: std::io::Error,
+    },
+}
+
+/// The neutral face at `lod` with its actuation basis: the sample's (`sample_dir`) at the
+/// sample's level of detail, else kept in `models_dir` (`neutral-<lod>.face/.basis`), else
+/// built from the rig (`load_rig`) and fitted, then kept there. `progress` hears each step.
+pub fn neutral_face(
+    lod: Lod,
+    sample_dir: &std::path::Path,
+    models_dir: &std::path::Path,
+    load_rig: &dyn Fn() -> Result<crate::rig::FaceRig, crate::rig::RigError>,
+    progress: &dyn Fn(&str),
+) -> Result<(FaceModel, crate::drive::basis::ActuationBasis), FaceCacheError> {
+    use crate::drive::basis::ActuationBasis;
+    let dir = if lod == crate::sample::SAMPLE_LOD {
+        sample_dir
+    } else {
+        models_dir
+    };
+    let (face_path, basis_path) = (
+        dir.join(format!("neutral-{}.face", lod.name())),
+        dir.join(format!("neutral-{}.basis", lod.name())),
+    );
+    if face_path.exists() && basis_path.exists() {
+        return Ok((
+            FaceModel::load(&face_path)?,
+            ActuationBasis::load(&basis_path)?,
+        ));
+    }
+    let rig = load_rig()?;
+    progress(&format!("building the neutral face at {}", lod.name()));
+    let face = crate::model::build_face(&rig, None, &lod.settings())?;
+    let basis = ActuationBasis::fit(&rig, &face, &|done, total, shape| {
+        progress(&format!("fitting {}: {done}/{total} {shape}", lod.name()))
+    })?;
+    std::fs::create_dir_all(models_dir).map_err(|source| FaceCacheError::Io {
+        path: models_dir.to_path_buf(),
+        source,
+    })?;
+    face.save(&face_path)?;
+    basis.save(&basis_path)?;
+    Ok((face, basis))
+}
+
 /// Solves `codes` in order on `face` (warm-started; see [`solve_codes`]), with contact
 /// gated by `gate` when `settings.contact` is on.
 pub fn run(
@@ -131,7 +191,7 @@ pub fn run(
     solve_codes(&sim, face.actuation, codes, settings, |frame, state| {
         out.ms.push(frame.ms);
         match &frame.outcome {
-            Ok(stats) if frame.finite => {
+            Ok(stats) => {
                 let x = state.flat_positions();
                 out.iterations.push(stats.iterations);
                 out.converged += usize::from(stats.converged());
@@ -145,10 +205,6 @@ pub fn run(
                     .max((volume / rest_volume - 1.0).abs());
                 out.frames
                     .push(Some(face.model.render_positions(x, &frame.bones)));
-            }
-            Ok(_) => {
-                out.errors.push("non-finite positions".into());
-                out.frames.push(None);
             }
             Err(e) => {
                 out.errors.push(e.to_string());
@@ -356,10 +412,10 @@ pub fn table(rows: &[TradeRow]) -> String {
 /// Time per frame against mean vertex error, one line per mesh and contact setting through
 /// the presets. Rows without a positive error (the reference's own configuration can reach
 /// zero) are drawn at 0.001 mm, the bottom of any useful scale.
-pub fn plot(rows: &[TradeRow]) -> Result<Canvas, String> {
+pub fn plot(rows: &[TradeRow]) -> Result<Canvas, crate::plot::PlotError> {
     let mut series: Vec<Series> = Vec::new();
     for r in rows.iter().filter(|r| r.mean_error_mm.is_finite()) {
-        let name = format!("{} contact {}", r.lod.name(), contact_label(r.gate));
+        let name = format!("{}, contact {}", r.lod.name(), contact_label(r.gate));
         let k = match series.iter().position(|s| s.name == name) {
             Some(k) => k,
             None => {
@@ -378,9 +434,9 @@ pub fn plot(rows: &[TradeRow]) -> Result<Canvas, String> {
         series[k].labels.push(r.quality.name()[..1].to_uppercase());
     }
     draw(&Chart {
-        title: "TIME PER FRAME AGAINST ERROR (I/P/F = INTERACTIVE/PREVIEW/FINAL)".into(),
+        title: "Time per frame against error (I, P, F: interactive, preview, final)".into(),
         x_label: "median ms per frame".into(),
-        y_label: "mean vertex error mm".into(),
+        y_label: "mean vertex error (mm)".into(),
         series,
     })
 }

@@ -23,11 +23,11 @@ pub mod candidates;
 pub mod ccd;
 pub mod collisions;
 pub mod distance;
-pub mod face;
 mod math;
 pub mod mesh;
 pub mod planar;
 pub mod potential;
+pub mod surface;
 #[cfg(test)]
 mod test_scenes;
 pub mod verlet;

@@ -335,7 +335,8 @@ mod tests {
     /// converged yet: residuals 1.0 and 0.03).
     #[test]
     fn lip_pressing_sliders_at_full_weight_solve_with_contact() {
-        use crate::contact::face::{FaceContact, FaceContactSettings};
+        use crate::contact::surface::FaceContact;
+        use crate::model::contact_region::FaceContactSettings;
         let b = basis();
         let face = coarse_face(None);
         let mut sim = face.simulator().unwrap();

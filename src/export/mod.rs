@@ -5,26 +5,27 @@
 //! Frames stream: each is simulated ([`run`], through the same [`Session`](crate::session::Session)
 //! the editor uses), handed to every format's writer, and dropped, so memory does not grow with
 //! the length of the track. Every output is written under a temporary name and renamed into
-//! place when the whole export succeeded ([`staging`]), with a report of every frame's
+//! place when the whole export succeeded ([`atomic`]), with a report of every frame's
 //! convergence and crossings ([`report`]).
 //!
 //! Units: the simulator and the USD, PC2, OBJ and rrd outputs are in centimetres (USD says so
 //! with `metersPerUnit = 0.01`); glTF is in metres, as its specification requires.
 
-pub mod cli;
+pub mod atomic;
 pub mod gltf;
 pub mod obj;
 pub mod pc2;
 pub mod report;
 pub mod run;
-pub mod staging;
 pub mod usd;
 
 use std::path::Path;
 
 pub use run::{ExportJob, ExportSummary, FrameRange, SinkFactory, export};
 
-use crate::session::Frame;
+use crate::session::track::Track;
+use crate::session::{Frame, SessionFace};
+use crate::sim::Quality;
 
 /// An output format.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -282,3 +283,47 @@ pub(crate) mod test_mesh {
 
 #[cfg(test)]
 mod tests;
+
+/// The preset if none is given here or in the track.
+pub const DEFAULT_QUALITY: Quality = Quality::Interactive;
+
+/// How the export renders: the command line's choice, else the track's, else the defaults
+/// (the interactive preset without contact: contact frames cost tens of seconds at the final
+/// preset today).
+pub fn render_settings(
+    quality: Option<Quality>,
+    contact: Option<bool>,
+    track: &Track,
+) -> (Quality, bool) {
+    (
+        quality.or(track.quality).unwrap_or(DEFAULT_QUALITY),
+        contact.or(track.contact).unwrap_or(false),
+    )
+}
+
+/// Picks the face: `--face` by name or index, else the track's face.
+pub fn choose_face(
+    faces: Vec<SessionFace>,
+    wanted: Option<&str>,
+    track: &Track,
+) -> Result<SessionFace, ExportError> {
+    let names: Vec<String> = faces.iter().map(|f| f.name.clone()).collect();
+    let key = wanted.unwrap_or(&track.face);
+    let index = names
+        .iter()
+        .position(|n| n == key)
+        .or_else(|| key.parse::<usize>().ok().filter(|&i| i < faces.len()));
+    match index {
+        Some(i) => Ok(faces.into_iter().nth(i).expect("index checked")),
+        None => Err(ExportError::Face(format!(
+            "the sample has no face '{key}'{} (faces: {}; indices 0–{})",
+            if wanted.is_none() {
+                " (the track's face; choose one with --face)"
+            } else {
+                ""
+            },
+            names.join(", "),
+            names.len().saturating_sub(1)
+        ))),
+    }
+}

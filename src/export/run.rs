@@ -6,10 +6,10 @@
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
+use super::atomic::Staging;
 use super::report::ReportBuilder;
-use super::staging::Staging;
 use super::{ExportError, ExportMesh, Format, FrameSink, frame_count};
-use crate::session::face::FaceTopology;
+use crate::session::session_face::FaceTopology;
 use crate::session::track::Track;
 use crate::session::{Display, Request, Session, SessionFace};
 use crate::sim::{Quality, Termination};

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use super::*;
 use crate::rig::ExpressionCode;
 use crate::sample::{SAMPLE_DIR, Sample};
-use crate::session::face::FaceTopology;
+use crate::session::session_face::FaceTopology;
 use crate::session::track::Track;
 use crate::sim::Quality;
 
@@ -97,7 +97,7 @@ impl SinkFactory for FailingFactory {
 #[test]
 fn a_short_track_exports_to_every_format_consistently() {
     let dir = std::env::temp_dir().join(format!("facesim-export-{}", std::process::id()));
-    staging::remove_any(&dir).unwrap();
+    atomic::remove_any(&dir).unwrap();
     let face = neutral();
     let mesh = ExportMesh::of(&face.model);
     let track = short_track();
@@ -116,7 +116,7 @@ fn a_short_track_exports_to_every_format_consistently() {
 
     // What an interrupted run left: a stale temporary and no outputs.
     std::fs::create_dir_all(&dir).unwrap();
-    std::fs::write(staging::temp_name(&dir.join("short.usda"), ""), "half").unwrap();
+    std::fs::write(atomic::temp_name(&dir.join("short.usda"), ""), "half").unwrap();
     let mut seen = Vec::new();
     let summary = export(face.clone(), &track, &job, None, &mut |d, n| {
         seen.push((d, n))
@@ -263,7 +263,7 @@ fn a_short_track_exports_to_every_format_consistently() {
     assert!(err.to_string().contains("disk full"), "{err}");
     assert_eq!(listing(&dir), SHORT_OUTPUTS);
     assert_eq!(std::fs::read(dir.join("short.pc2")).unwrap(), before);
-    staging::remove_any(&dir).unwrap();
+    atomic::remove_any(&dir).unwrap();
 }
 
 #[test]
@@ -279,7 +279,7 @@ fn faces_are_chosen_by_name_index_or_the_track() {
     let sample = Sample::load(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(SAMPLE_DIR)).unwrap();
     let track = short_track();
     let pick =
-        |w: Option<&str>| cli::choose_face(sample.session_faces(), w, &track).map(|f| f.name);
+        |w: Option<&str>| super::choose_face(sample.session_faces(), w, &track).map(|f| f.name);
     assert_eq!(pick(None).unwrap(), "neutral");
     assert_eq!(pick(Some("identity001")).unwrap(), "identity001");
     assert_eq!(pick(Some("2")).unwrap(), sample.session_faces()[2].name);
@@ -342,7 +342,7 @@ fn the_report_marks_unconverged_and_crossing_frames() {
 #[test]
 fn a_range_of_frames_matches_the_whole_export() {
     let dir = std::env::temp_dir().join(format!("facesim-export-range-{}", std::process::id()));
-    staging::remove_any(&dir).unwrap();
+    atomic::remove_any(&dir).unwrap();
     let track = short_track();
     let job = |name: &str, range: Option<FrameRange>| ExportJob {
         range,
@@ -397,5 +397,5 @@ fn a_range_of_frames_matches_the_whole_export() {
         &mut |_, _| {},
     );
     assert!(matches!(err, Err(ExportError::EmptyRange { total: 4, .. })));
-    staging::remove_any(&dir).unwrap();
+    atomic::remove_any(&dir).unwrap();
 }

@@ -32,11 +32,13 @@ use serde::{Deserialize, Serialize};
 use super::GenerativeError;
 use super::displacement::DisplacementFace;
 use super::metrics::{VolumeChange, lip_crossings, target_crossings};
-use crate::contact::face::{FaceContact, FaceContactSettings};
+use crate::contact::surface::FaceContact;
 use crate::drive::{ActuationModel, Codes};
 use crate::mapping::warp::quantile;
 use crate::model::FaceModel;
+use crate::model::contact_region::FaceContactSettings;
 use crate::rig::{ExpressionCode, FaceRig, StyleCode};
+use crate::sequence::Sequence;
 use crate::sim::{BonePose, Quality, Simulator};
 use crate::table::Table;
 
@@ -298,11 +300,13 @@ fn pose(
             let mut settings = Quality::Final.settings();
             settings.contact = contact;
             let a = m.actuate(codes).map_err(|e| e.to_string())?;
-            let mut state = sim.rest_state();
-            let stats = sim
-                .solve(&a.tensors, &a.bones(), &mut state, &settings)
+            // Every code from rest: the error belongs to the code, not to the codes before it.
+            let mut from_rest = Sequence::new(sim);
+            let stats = from_rest
+                .solve(&a.tensors, &a.bones(), &settings)
                 .map_err(|e| e.to_string())?;
-            Ok((state.flat_positions().to_vec(), a.bones(), stats.iterations))
+            let positions = from_rest.state().flat_positions().to_vec();
+            Ok((positions, a.bones(), stats.iterations))
         }
         EvalModel::Displacement(d) => {
             let p = d.pose(codes).map_err(|e| e.to_string())?;

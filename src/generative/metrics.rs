@@ -10,7 +10,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::contact::face::FaceContact;
+use crate::contact::surface::FaceContact;
 use crate::geometry::TetMesh;
 use crate::sim::BonePose;
 

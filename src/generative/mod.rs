@@ -22,10 +22,11 @@ pub mod data;
 pub mod displacement;
 pub mod eval;
 pub mod expm;
-pub mod face;
+pub mod generative_face;
 pub mod loss;
 pub mod metrics;
 pub mod nets;
+pub mod pipeline;
 pub mod run;
 pub mod stage2;
 pub mod train;
@@ -39,7 +40,9 @@ pub(crate) mod tests;
 pub use data::{FacePoses, PoseData, PoseSettings, held_out_codes, training_codes};
 pub use displacement::{DisplacementData, DisplacementFace, DisplacementNets};
 pub use eval::{EvalReport, EvalRow, evaluate};
-pub use face::{GenerativeFace, SAMPLE_NETWORKS, load_sample_networks, sample_actuations};
+pub use generative_face::{
+    GenerativeFace, SAMPLE_NETWORKS, load_sample_networks, sample_actuations,
+};
 pub use nets::{Architecture, CanonicalFrame, GenerativeNets};
 pub use stage2::{Stage2Data, Stage2Face, Stage2Settings, Stage2Trainer};
 pub use train::{

@@ -121,7 +121,7 @@ pub struct CanonicalFrame {
 impl CanonicalFrame {
     /// The frame of the canonical (template) face.
     pub fn of(canonical: &FaceModel) -> Self {
-        let f = crate::mapping::Frame::between(canonical, canonical);
+        let f = crate::mapping::Normalization::between(canonical, canonical);
         CanonicalFrame {
             center: f.canonical_center,
             scale: f.scale,

@@ -123,6 +123,18 @@ pub enum RunError {
     },
     #[error(transparent)]
     Train(#[from] GenerativeError),
+    #[error("{face}: {source}")]
+    Face {
+        face: String,
+        source: Box<GenerativeError>,
+    },
+    #[error("loading the networks {path}: {source}")]
+    Init {
+        path: PathBuf,
+        source: Box<GenerativeError>,
+    },
+    #[error("loading the rig: {0}")]
+    Rig(#[from] crate::rig::RigError),
 }
 
 fn io_error(path: &Path) -> impl Fn(std::io::Error) -> RunError + '_ {

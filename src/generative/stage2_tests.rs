@@ -7,7 +7,7 @@ use nalgebra::{Point3, Rotation3, Vector3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use super::face::FaceWarp;
+use super::generative_face::FaceWarp;
 use super::loss::{LossWorkspace, zero_grads};
 use super::nets::{CanonicalFrame, GenerativeNets};
 use super::stage2::{
@@ -19,8 +19,8 @@ use super::train::Stage1Config;
 use crate::drive::Codes;
 use crate::rig::test_support::temp_dir;
 use crate::rig::{ExpressionCode, StyleCode};
-use crate::scene::{SLAB_SIZE, SlabScene};
 use crate::sim::{Bone, SimConfig, Simulator, SolveSettings};
+use crate::slab::{SLAB_SIZE, SlabScene};
 
 fn slab_frame() -> CanonicalFrame {
     CanonicalFrame {

@@ -9,7 +9,7 @@ use faer::Par;
 use super::data::{FacePoses, PoseData, PoseSettings, held_out_codes, training_codes};
 use super::displacement::{DisplacementFace, DisplacementNets};
 use super::eval::{EvalFace, EvalModel, evaluate};
-use super::face::{FaceWarp, GenerativeFace};
+use super::generative_face::{FaceWarp, GenerativeFace};
 use super::loss::{LossWeights, LossWorkspace, batch_loss, zero_grads};
 use super::nets::{Architecture, CanonicalFrame, GenerativeNets};
 use super::train::{Stage1Config, Stage1Data, Trainer, train_stage1};

@@ -13,7 +13,7 @@ use serde::{Deserialize, Serialize};
 
 use super::GenerativeError;
 use super::data::FacePoses;
-use super::face::FaceWarp;
+use super::generative_face::FaceWarp;
 use super::loss::{Batch, Grads, LossParts, LossWeights, LossWorkspace, batch_loss};
 use super::nets::{Architecture, CanonicalFrame, GenerativeNets, NET_NAMES, from_hex, to_hex};
 use crate::drive::Codes;

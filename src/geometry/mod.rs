@@ -1,5 +1,6 @@
 //! Geometry: tetrahedral meshes and generated test meshes.
 
+pub mod bones;
 pub mod bvh;
 pub mod crossing;
 pub mod distance;

@@ -8,6 +8,7 @@
 //! → N_A evaluated at canonical positions and warped per element → solver. [`stats`] and
 //! [`plot`] give the Fig. 3 heatmaps and per-vertex values for the viewer.
 
+pub mod folder;
 pub mod network;
 pub mod plot;
 pub mod samples;
@@ -15,7 +16,7 @@ pub mod stats;
 pub mod train;
 pub mod warp;
 
-pub use network::{Architecture, Frame, MappedPoint, Mapping, TrainingRecord, rotation_of};
+pub use network::{Architecture, MappedPoint, Mapping, Normalization, TrainingRecord, rotation_of};
 pub use samples::{Correspondences, elastic_points, volume_points};
 pub use stats::{HeatmapKind, IdentityStats, Summary, vertex_values};
 pub use train::{LossRow, TrainConfig, loss_csv, train};

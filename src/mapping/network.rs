@@ -58,7 +58,7 @@ impl Architecture {
 
 /// The fixed normalization around the network (module docs).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-pub struct Frame {
+pub struct Normalization {
     /// c_M: centre of the identity's tissue bounding box, cm.
     pub material_center: [f64; 3],
     /// c_C: centre of the canonical face's tissue bounding box, cm.
@@ -67,7 +67,7 @@ pub struct Frame {
     pub scale: f64,
 }
 
-impl Frame {
+impl Normalization {
     /// The frame between an identity's face and the canonical face.
     pub fn between(identity: &FaceModel, canonical: &FaceModel) -> Self {
         let center = |m: &FaceModel| {
@@ -77,7 +77,7 @@ impl Frame {
         };
         let (lo, hi) = canonical.mesh.bounds();
         let scale = 0.5 * (hi - lo).max();
-        Frame {
+        Normalization {
             material_center: center(identity),
             canonical_center: center(canonical),
             scale,
@@ -123,7 +123,7 @@ struct MappingFile {
     mesh_vertices: usize,
     mesh_elements: usize,
     architecture: Architecture,
-    frame: Frame,
+    frame: Normalization,
     params: Vec<f64>,
     record: TrainingRecord,
 }
@@ -156,7 +156,7 @@ pub struct Mapping {
     mesh_vertices: usize,
     mesh_elements: usize,
     pub architecture: Architecture,
-    pub frame: Frame,
+    pub frame: Normalization,
     net: Mlp<f64>,
     pub record: Option<TrainingRecord>,
 }
@@ -179,7 +179,7 @@ impl Mapping {
             mesh_vertices: identity.mesh.vertex_count(),
             mesh_elements: identity.mesh.element_count(),
             architecture,
-            frame: Frame::between(identity, canonical),
+            frame: Normalization::between(identity, canonical),
             net,
             record: None,
         })

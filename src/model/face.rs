@@ -78,19 +78,6 @@ impl Binding {
     }
 }
 
-/// `T_skull(rest) + R_skull·M·R_skullᵀ·(T_jaw(rest) − T_skull(rest))` for a jaw map `M`
-/// ([`Binding::Bones`]).
-pub fn between_bones(
-    jaw_map: &Matrix3<f64>,
-    bones: &crate::sim::BonePose,
-    pivot: &Point3<f64>,
-    rest: &Point3<f64>,
-) -> Point3<f64> {
-    let skull = bones.target(Bone::Skull, pivot, rest);
-    let turn = bones.skull.rotation_matrix();
-    skull + turn * jaw_map * turn.transpose() * (bones.target(Bone::Jaw, pivot, rest) - skull)
-}
-
 /// The rig's texture coordinates on the render surface. UVs belong to triangle corners, not
 /// vertices: along a seam one vertex has a different `(u, v)` in each of its charts.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -179,7 +166,7 @@ impl FaceModel {
                 interpolate(&self.mesh.tets[*element as usize], weights, x)
             }
             Binding::Rigid(bone) => bones.target(*bone, &self.jaw_pivot, rest),
-            Binding::Bones { jaw } => between_bones(jaw, bones, &self.jaw_pivot, rest),
+            Binding::Bones { jaw } => bones.between_bones(jaw, &self.jaw_pivot, rest),
             Binding::Blended {
                 element,
                 weights,

@@ -4,6 +4,7 @@ pub mod audit;
 pub mod bindings;
 mod bone_motion;
 pub mod build;
+pub mod contact_region;
 pub mod face;
 pub mod file;
 pub mod fit;

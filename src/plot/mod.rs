@@ -1,13 +1,16 @@
-//! Pictures without a plotting crate: an RGB [`Canvas`] with filled boxes, lines and text in
-//! the built-in bitmap font, written as PNG; the figures (mapping heatmaps, trade-off charts)
-//! draw on it.
+//! Pictures: an RGB [`Canvas`] that plotters draws on (its bitmap backend over our buffer,
+//! text in a built-in font), written as PNG by the `png` crate; the figures (mapping heatmaps,
+//! trade-off charts) are drawn with it.
 
-pub mod font;
 pub mod scatter;
 
 use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
 
-/// Why a picture could not be written.
+use plotters::coord::Shift;
+use plotters::prelude::{BitMapBackend, DrawingArea, IntoDrawingArea};
+
+/// Why a picture could not be drawn or written.
 #[derive(Debug, thiserror::Error)]
 pub enum PlotError {
     #[error("{path}: {source}")]
@@ -17,10 +20,37 @@ pub enum PlotError {
     },
     #[error("writing a PNG: {0}")]
     Png(String),
+    #[error("drawing: {0}")]
+    Draw(String),
 }
 
-/// Text scale: each font pixel is SCALE × SCALE.
-pub const SCALE: usize = 2;
+/// The font family every figure's text uses: a subset of DejaVu Sans (`fonts/`, with its
+/// licence) built into the binary, so pictures need no system fonts.
+pub const FONT: &str = "sans-serif";
+
+/// Registers [`FONT`] with plotters once.
+fn register_font() -> Result<(), PlotError> {
+    static REGISTERED: OnceLock<bool> = OnceLock::new();
+    let ok = *REGISTERED.get_or_init(|| {
+        plotters::style::register_font(
+            FONT,
+            plotters::style::FontStyle::Normal,
+            include_bytes!("fonts/DejaVuSans-subset.ttf"),
+        )
+        .is_ok()
+    });
+    if ok {
+        Ok(())
+    } else {
+        Err(PlotError::Draw("the built-in font does not load".into()))
+    }
+}
+
+/// A drawing error of plotters, as ours.
+pub(crate) fn draw_error(e: impl std::fmt::Display) -> PlotError {
+    PlotError::Draw(e.to_string())
+}
+
 pub const WHITE: [u8; 3] = [255, 255, 255];
 pub const BLACK: [u8; 3] = [0, 0, 0];
 
@@ -33,57 +63,31 @@ pub struct Canvas {
 }
 
 impl Canvas {
-    pub fn new(width: usize, height: usize) -> Self {
-        Canvas {
+    /// A white picture drawn by `draw` on a plotters drawing area of its size (pixels, origin
+    /// top left).
+    pub fn draw(
+        width: usize,
+        height: usize,
+        draw: impl FnOnce(&DrawingArea<BitMapBackend<'_>, Shift>) -> Result<(), PlotError>,
+    ) -> Result<Canvas, PlotError> {
+        register_font()?;
+        let mut pixels = vec![255; width * height * 3];
+        {
+            let area = BitMapBackend::with_buffer(&mut pixels, (width as u32, height as u32))
+                .into_drawing_area();
+            draw(&area)?;
+            area.present().map_err(draw_error)?;
+        }
+        Ok(Canvas {
             width,
             height,
-            pixels: vec![255; width * height * 3],
-        }
+            pixels,
+        })
     }
 
     pub fn pixel(&self, x: usize, y: usize) -> [u8; 3] {
         let i = 3 * (y * self.width + x);
         [self.pixels[i], self.pixels[i + 1], self.pixels[i + 2]]
-    }
-
-    pub fn set(&mut self, x: usize, y: usize, c: [u8; 3]) {
-        if x < self.width && y < self.height {
-            let i = 3 * (y * self.width + x);
-            self.pixels[i..i + 3].copy_from_slice(&c);
-        }
-    }
-
-    pub fn fill(&mut self, x: usize, y: usize, w: usize, h: usize, c: [u8; 3]) {
-        for yy in y..y + h {
-            for xx in x..x + w {
-                self.set(xx, yy, c);
-            }
-        }
-    }
-
-    pub fn text(&mut self, s: &str, x: usize, y: usize) {
-        let mut lit = Vec::new();
-        font::draw(s, x, y, SCALE, |px, py| lit.push((px, py)));
-        for (px, py) in lit {
-            self.set(px, py, BLACK);
-        }
-    }
-
-    pub fn text_centered(&mut self, s: &str, cx: usize, y: usize) {
-        let w = font::text_width(s, SCALE);
-        self.text(s, cx.saturating_sub(w / 2), y);
-    }
-
-    /// A 2-pixel-wide straight line between two points (in pixels; off-canvas parts clipped).
-    pub fn line(&mut self, a: (f64, f64), b: (f64, f64), c: [u8; 3]) {
-        let steps = (b.0 - a.0).abs().max((b.1 - a.1).abs()).ceil().max(1.0) as usize;
-        for i in 0..=steps {
-            let t = i as f64 / steps as f64;
-            let (x, y) = (a.0 + t * (b.0 - a.0), a.1 + t * (b.1 - a.1));
-            if x >= 0.0 && y >= 0.0 {
-                self.fill(x.round() as usize, y.round() as usize, 2, 2, c);
-            }
-        }
     }
 
     /// Writes the picture as an 8-bit RGB PNG.
@@ -105,6 +109,11 @@ impl Canvas {
         w.write_image_data(&self.pixels).map_err(png_err)?;
         w.finish().map_err(png_err)
     }
+}
+
+/// `c` as a plotters colour.
+pub fn rgb(c: [u8; 3]) -> plotters::style::RGBColor {
+    plotters::style::RGBColor(c[0], c[1], c[2])
 }
 
 /// Viridis at t ∈ [0, 1] (piecewise linear through 5 of its colours).

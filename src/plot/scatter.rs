@@ -2,7 +2,9 @@
 //! each point labelled, a legend; what `facesim bench tradeoff` draws its time-against-error
 //! curves with.
 
-use super::{BLACK, Canvas, SCALE, font};
+use plotters::prelude::*;
+
+use super::{Canvas, FONT, PlotError, draw_error, rgb};
 
 /// Points of one series, joined in the order given.
 #[derive(Clone, Debug, PartialEq)]
@@ -34,13 +36,10 @@ pub const PALETTE: [[u8; 3]; 6] = [
     [86, 180, 233],
 ];
 
-const WIDTH: usize = 900;
-const HEIGHT: usize = 600;
-const LEFT: usize = 110;
-const RIGHT: usize = 40;
-const TOP: usize = 76;
-const BOTTOM: usize = 80;
-const GRID: [u8; 3] = [225, 225, 225];
+const WIDTH: usize = 1000;
+const HEIGHT: usize = 620;
+/// The legend's column, right of the chart (it never covers the data).
+const LEGEND_W: usize = 290;
 
 /// The decades `[lo, hi]` of a log axis that cover `values` (at least one decade wide).
 fn decades(values: impl Iterator<Item = f64>) -> (i32, i32) {
@@ -56,90 +55,106 @@ fn decades(values: impl Iterator<Item = f64>) -> (i32, i32) {
     (a, b.max(a + 1))
 }
 
-fn decade_label(k: i32) -> String {
-    let v = 10f64.powi(k);
-    if k < 0 {
-        format!("{v:.*}", (-k) as usize)
-    } else {
-        format!("{v:.0}")
-    }
+/// A tick value on a log axis: `0.001`, `10`, `2000`.
+fn tick_label(v: f64) -> String {
+    let digits = (-v.log10().floor()).max(0.0) as usize;
+    format!("{v:.digits$}")
 }
 
-/// Draws `chart`; a point that is not finite and positive is an error, not a silent gap.
-pub fn draw(chart: &Chart) -> Result<Canvas, String> {
+/// Draws `chart`: the curves on log–log axes with a grid, each point's label beside it (a
+/// label already drawn at the same place is not drawn again, so coinciding series do not
+/// double it), and the legend in a column of its own. A point that is not finite and
+/// positive is an error, not a silent gap.
+pub fn draw(chart: &Chart) -> Result<Canvas, PlotError> {
     for s in &chart.series {
         if let Some(p) = s
             .points
             .iter()
             .find(|(x, y)| !(x.is_finite() && y.is_finite() && *x > 0.0 && *y > 0.0))
         {
-            return Err(format!(
+            return Err(PlotError::Draw(format!(
                 "series {}: point {p:?} cannot go on log axes",
                 s.name
-            ));
+            )));
         }
     }
     let all = || chart.series.iter().flat_map(|s| s.points.iter());
     let (x0, x1) = decades(all().map(|p| p.0));
     let (y0, y1) = decades(all().map(|p| p.1));
-    let (pw, ph) = (WIDTH - LEFT - RIGHT, HEIGHT - TOP - BOTTOM);
-    let px = |x: f64| LEFT as f64 + (x.log10() - x0 as f64) / (x1 - x0) as f64 * pw as f64;
-    let py = |y: f64| (TOP + ph) as f64 - (y.log10() - y0 as f64) / (y1 - y0) as f64 * ph as f64;
-    let mut c = Canvas::new(WIDTH, HEIGHT);
-    let char_h = font::HEIGHT * SCALE;
-
-    // Grid and ticks at every decade.
-    for k in x0..=x1 {
-        let x = px(10f64.powi(k)).round() as usize;
-        c.fill(x, TOP, 1, ph, GRID);
-        c.fill(x, TOP + ph, 1, 6, BLACK);
-        c.text_centered(&decade_label(k), x, TOP + ph + 10);
-    }
-    for k in y0..=y1 {
-        let y = py(10f64.powi(k)).round() as usize;
-        c.fill(LEFT, y, pw, 1, GRID);
-        c.fill(LEFT - 6, y, 6, 1, BLACK);
-        let label = decade_label(k);
-        c.text(
-            &label,
-            LEFT - 10 - font::text_width(&label, SCALE),
-            y.saturating_sub(char_h / 2),
-        );
-    }
-    c.fill(LEFT, TOP, 1, ph + 1, BLACK);
-    c.fill(LEFT, TOP + ph, pw, 1, BLACK);
-    c.text_centered(&chart.title, WIDTH / 2, 12);
-    c.text_centered(&chart.x_label, LEFT + pw / 2, TOP + ph + 16 + char_h);
-    c.text(&chart.y_label, 8, TOP - char_h - 12);
-
-    for s in &chart.series {
-        let pts: Vec<(f64, f64)> = s.points.iter().map(|&(x, y)| (px(x), py(y))).collect();
-        for w in pts.windows(2) {
-            c.line(w[0], w[1], s.colour);
-        }
-        for (i, &(x, y)) in pts.iter().enumerate() {
-            let (x, y) = (x.round() as usize, y.round() as usize);
-            c.fill(x.saturating_sub(3), y.saturating_sub(3), 7, 7, s.colour);
-            if let Some(label) = s.labels.get(i).filter(|l| !l.is_empty()) {
-                c.text(label, x + 6, y.saturating_sub(char_h + 2));
+    Canvas::draw(WIDTH, HEIGHT, |root| {
+        let titled = root.titled(&chart.title, (FONT, 22)).map_err(draw_error)?;
+        let (plot_area, legend_area) = titled.split_horizontally((WIDTH - LEGEND_W) as u32);
+        let mut c = ChartBuilder::on(&plot_area)
+            .margin(14)
+            .x_label_area_size(56)
+            .y_label_area_size(84)
+            .build_cartesian_2d(
+                // A hair past the end decades, so their ticks are drawn too.
+                (0.999 * 10f64.powi(x0)..1.001 * 10f64.powi(x1)).log_scale(),
+                (0.999 * 10f64.powi(y0)..1.001 * 10f64.powi(y1)).log_scale(),
+            )
+            .map_err(draw_error)?;
+        c.configure_mesh()
+            .x_desc(&chart.x_label)
+            .y_desc(&chart.y_label)
+            .axis_desc_style((FONT, 17))
+            .label_style((FONT, 15))
+            .x_label_formatter(&|v| tick_label(*v))
+            .y_label_formatter(&|v| tick_label(*v))
+            .light_line_style(rgb([238, 238, 238]))
+            .bold_line_style(rgb([205, 205, 205]))
+            .draw()
+            .map_err(draw_error)?;
+        let mut placed: Vec<(i32, i32, String)> = Vec::new();
+        for s in &chart.series {
+            let colour = rgb(s.colour);
+            c.draw_series(LineSeries::new(
+                s.points.iter().copied(),
+                colour.stroke_width(2),
+            ))
+            .map_err(draw_error)?;
+            c.draw_series(s.points.iter().map(|&p| Circle::new(p, 5, colour.filled())))
+                .map_err(draw_error)?;
+            for (p, label) in s.points.iter().zip(&s.labels) {
+                if label.is_empty() {
+                    continue;
+                }
+                let (px, py) = c.backend_coord(p);
+                let (mut lx, mut ly) = (px + 9, py - 9);
+                let near = |(x, y, _): &&(i32, i32, String), lx: i32, ly: i32| {
+                    (x - lx).abs() < 14 && (y - ly).abs() < 16
+                };
+                if placed.iter().any(|q| near(&q, lx, ly) && q.2 == *label) {
+                    continue;
+                }
+                while placed.iter().any(|q| near(&q, lx, ly)) {
+                    ly += 16;
+                }
+                lx = lx.min((WIDTH - LEGEND_W) as i32 - 20);
+                // `backend_coord` is in the whole picture's pixels.
+                root.draw(&Text::new(label.clone(), (lx, ly), (FONT, 16)))
+                    .map_err(draw_error)?;
+                placed.push((lx, ly, label.clone()));
             }
         }
-    }
-    // Legend, top right, one line per series.
-    let legend_w = chart
-        .series
-        .iter()
-        .map(|s| font::text_width(&s.name, SCALE))
-        .max()
-        .unwrap_or(0)
-        + 26;
-    let lx = WIDTH - RIGHT - legend_w - 10;
-    for (i, s) in chart.series.iter().enumerate() {
-        let y = TOP + 10 + i * (char_h + 8);
-        c.fill(lx, y + 2, 14, char_h - 4, s.colour);
-        c.text(&s.name, lx + 22, y);
-    }
-    Ok(c)
+        for (i, s) in chart.series.iter().enumerate() {
+            let y = 70 + 28 * i as i32;
+            let colour = rgb(s.colour);
+            legend_area
+                .draw(&PathElement::new(
+                    vec![(8, y + 8), (40, y + 8)],
+                    colour.stroke_width(2),
+                ))
+                .map_err(draw_error)?;
+            legend_area
+                .draw(&Circle::new((24, y + 8), 5, colour.filled()))
+                .map_err(draw_error)?;
+            legend_area
+                .draw(&Text::new(s.name.clone(), (50, y), (FONT, 15)))
+                .map_err(draw_error)?;
+        }
+        Ok(())
+    })
 }
 
 #[cfg(test)]
@@ -163,14 +178,27 @@ mod tests {
     #[test]
     fn points_land_on_their_decades_and_bad_points_are_refused() {
         let c = draw(&chart(vec![(1.0, 0.01), (100.0, 1.0)])).unwrap();
-        // x decades 0..2 and y decades -2..0: the two points sit at opposite plot corners.
-        let (pw, ph) = (WIDTH - LEFT - RIGHT, HEIGHT - TOP - BOTTOM);
-        assert_eq!(c.pixel(LEFT + 1, TOP + ph - 1), PALETTE[0]);
-        assert_eq!(c.pixel(LEFT + pw - 1, TOP + 1), PALETTE[0]);
-        // The line between them passes through the middle.
-        let mid = (LEFT + pw / 2, TOP + ph / 2);
-        let near = (0..5).any(|d| c.pixel(mid.0, mid.1 + d - 2) == PALETTE[0]);
-        assert!(near);
+        // x decades 0..2 and y decades -2..0: the two points sit at opposite corners of the
+        // plot, so the series' colour spans most of the chart's width and height, left of
+        // the legend column, and the line between them passes through the middle.
+        let (mut lo, mut hi) = ((usize::MAX, usize::MAX), (0, 0));
+        for y in 0..c.height {
+            for x in 0..WIDTH - LEGEND_W {
+                if c.pixel(x, y) == PALETTE[0] {
+                    lo = (lo.0.min(x), lo.1.min(y));
+                    hi = (hi.0.max(x), hi.1.max(y));
+                }
+            }
+        }
+        assert!(hi.0 - lo.0 > (WIDTH - LEGEND_W) * 2 / 3, "{lo:?} {hi:?}");
+        assert!(hi.1 - lo.1 > HEIGHT * 2 / 3, "{lo:?} {hi:?}");
+        let mid = ((lo.0 + hi.0) / 2, (lo.1 + hi.1) / 2);
+        let near = (0..7).any(|d| c.pixel(mid.0, mid.1 + d - 3) == PALETTE[0]);
+        assert!(near, "the line misses the middle {mid:?}");
+        // The legend's swatch is in its own column.
+        let legend =
+            (WIDTH - LEGEND_W..WIDTH).any(|x| (0..HEIGHT).any(|y| c.pixel(x, y) == PALETTE[0]));
+        assert!(legend);
         assert!(draw(&chart(vec![(1.0, 0.0)])).is_err());
         assert!(draw(&chart(vec![(f64::NAN, 1.0)])).is_err());
     }

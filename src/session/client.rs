@@ -10,10 +10,10 @@ use std::sync::{Arc, Condvar, Mutex};
 
 use nalgebra::Point3;
 
-use super::face::FaceTopology;
 use super::frame::{Frame, vertex_normals};
 use super::handle::{FrameObserver, SessionHandle};
 use super::protocol::{Encoding, Entries, FaceInfo, FaceRef, Message, Reply};
+use super::session_face::FaceTopology;
 use super::tls::{ClientTls, Duplex, TlsError};
 use super::wire::{QuantizedGeometry, inflate};
 use super::worker::{Inputs, Request, SessionError, apply_requests};

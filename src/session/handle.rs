@@ -2,9 +2,9 @@
 
 use std::sync::Arc;
 
-use super::face::FaceTopology;
 use super::frame::Frame;
 use super::protocol::FaceInfo;
+use super::session_face::FaceTopology;
 use super::worker::{Inputs, Request, Session, SessionError};
 
 /// A callback run with each new frame.

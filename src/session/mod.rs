@@ -8,12 +8,12 @@
 
 pub mod client;
 pub mod crosses;
-pub mod face;
 pub mod frame;
 pub mod handle;
 pub mod heatmap;
 pub mod protocol;
 pub mod server;
+pub mod session_face;
 pub mod tls;
 pub mod token;
 pub mod track;
@@ -21,10 +21,10 @@ pub mod web;
 pub mod wire;
 pub mod worker;
 
-pub use face::{FaceTopology, SessionFace};
 pub use frame::{Frame, FrameStats};
 pub use handle::SessionHandle;
 pub use heatmap::{FieldSource, Legend, ScalarField};
+pub use session_face::{FaceTopology, SessionFace};
 pub use token::Token;
 pub use worker::{Display, Inputs, Request, Session, SessionError};
 

@@ -24,8 +24,8 @@ use std::time::Duration;
 
 use serde::{Deserialize, Serialize};
 
-use super::face::FaceTopology;
 use super::frame::Frame;
+use super::session_face::FaceTopology;
 use super::wire::QuantizedGeometry;
 use super::worker::{Display, Inputs, Request, Session};
 use crate::rig::ExpressionCode;

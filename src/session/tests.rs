@@ -906,7 +906,7 @@ fn the_topology_shows_the_eyes_and_leaves_out_their_see_through_layers() {
     let overlay: usize = render
         .parts
         .iter()
-        .filter(|p| face::OVERLAY_PARTS.contains(&p.name.as_str()))
+        .filter(|p| session_face::OVERLAY_PARTS.contains(&p.name.as_str()))
         .map(|p| p.triangles.len())
         .sum();
     assert!(overlay > 0);
@@ -917,7 +917,7 @@ fn the_topology_shows_the_eyes_and_leaves_out_their_see_through_layers() {
         .find(|p| p.name == "M_IrisLeft")
         .unwrap();
     let v = render.triangles[iris.triangles.start as usize][0] as usize;
-    assert_ne!(topology.colors[v], face::SKIN_COLOR);
+    assert_ne!(topology.colors[v], session_face::SKIN_COLOR);
     assert!(
         !topology.rigid[v],
         "the eyes are not under the teeth toggle"
@@ -925,5 +925,5 @@ fn the_topology_shows_the_eyes_and_leaves_out_their_see_through_layers() {
     let teeth = render.parts.iter().find(|p| p.name == "M_Teeth").unwrap();
     let t = render.triangles[teeth.triangles.start as usize][0] as usize;
     assert!(topology.rigid[t]);
-    assert_eq!(topology.colors[t], face::INNER_COLOR);
+    assert_eq!(topology.colors[t], session_face::INNER_COLOR);
 }

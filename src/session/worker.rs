@@ -7,15 +7,17 @@ use std::time::{Duration, Instant};
 
 use serde::{Deserialize, Serialize};
 
-use super::face::{FaceTopology, SessionFace};
 use super::frame::{Frame, FrameStats, Overlays, Solved, geometry};
 use super::heatmap::{FieldSource, builtin_sources};
+use super::session_face::{FaceTopology, SessionFace};
 use crate::contact::ContactError;
-use crate::contact::face::{FaceContact, FaceContactSettings};
+use crate::contact::surface::FaceContact;
 use crate::drive::{Codes, DriveError};
+use crate::model::contact_region::FaceContactSettings;
 use crate::rig::ExpressionCode;
 use crate::rig::style::StyleCode;
-use crate::sim::{Quality, RigidMotion, SimError, SimState, Simulator, SolveSettings};
+use crate::sequence::{FrameFailure, Sequence};
+use crate::sim::{Quality, RigidMotion, SimError, Simulator, SolveSettings};
 
 /// How long the inputs must rest before the frame is refined to the next preset.
 pub const REST_BEFORE_REFINING: Duration = Duration::from_millis(150);
@@ -343,14 +345,10 @@ pub fn apply_requests(
 
 /// Per-face simulation state, built on first use.
 struct FaceSim {
-    sim: Simulator,
-    state: SimState,
-    /// Whether `state` was solved with contact: a contact solve must start from a state
-    /// without crossings, which a contact-free one does not promise.
-    contact: bool,
-    /// Positions of the last successful solve, to recover from a failed one.
-    good_x: Vec<f64>,
-    /// What `state` holds the solve of (`None` after a failed or interrupted solve).
+    /// The face's frames so far: the warm start, the last good frame, contact's start.
+    sequence: Sequence<Simulator>,
+    /// What the sequence's state holds the solve of (`None` after a failed or interrupted
+    /// solve).
     last: Option<LastSolve>,
 }
 
@@ -521,24 +519,12 @@ impl Worker {
                 let mut sim = face.model.simulator()?;
                 let surfaces = FaceContact::new(&face.model, &FaceContactSettings::default())?;
                 sim.set_contact(surfaces)?;
-                let state = sim.rest_state();
-                let good_x = state.flat_positions().to_vec();
                 self.sims[inputs.face] = Some(FaceSim {
-                    sim,
-                    state,
-                    contact: false,
-                    good_x,
+                    sequence: Sequence::new(sim),
                     last: None,
                 });
             }
             let fs = self.sims[inputs.face].as_mut().expect("built above");
-            if inputs.contact && !fs.contact {
-                // Switching contact on: start from the (crossing-free) rest shape.
-                fs.state = fs.sim.rest_state();
-                fs.good_x.clear();
-                fs.good_x.extend_from_slice(fs.state.flat_positions());
-            }
-            fs.contact = inputs.contact;
             // The state is about to change: until this solve succeeds it answers nothing.
             fs.last = None;
             let settings = SolveSettings {
@@ -546,9 +532,7 @@ impl Worker {
                 ..settings
             };
             let bones = actuation.bones();
-            let mut stats = fs
-                .sim
-                .solve(&actuation.tensors, &bones, &mut fs.state, &settings);
+            let mut stats = fs.sequence.solve(&actuation.tensors, &bones, &settings);
             if let Some(budget) = budget {
                 let mut total = 0;
                 while let Ok(s) = &stats {
@@ -562,9 +546,7 @@ impl Worker {
                     if newer {
                         return Ok(None);
                     }
-                    let more = fs
-                        .sim
-                        .solve(&actuation.tensors, &bones, &mut fs.state, &settings);
+                    let more = fs.sequence.solve(&actuation.tensors, &bones, &settings);
                     stats = more.map(|mut m| {
                         m.iterations += total;
                         m
@@ -574,18 +556,9 @@ impl Worker {
             }
             match stats {
                 Ok(stats) => Ok(Some((actuation, stats))),
-                Err(e) => {
-                    // Recover the last good state so the next solve starts from it.
-                    let good: Vec<_> = fs
-                        .good_x
-                        .chunks_exact(3)
-                        .map(|p| nalgebra::Point3::new(p[0], p[1], p[2]))
-                        .collect();
-                    if let Ok(state) = fs.sim.state_at(&good) {
-                        fs.state = state;
-                    }
-                    Err(FrameError::Solve(e))
-                }
+                Err(FrameFailure::Actuation(e)) => Err(FrameError::Actuation(e)),
+                Err(FrameFailure::Solve(e)) => Err(FrameError::Solve(e)),
+                Err(FrameFailure::NonFinite) => Err(FrameError::NonFinite),
             }
         })();
         let frame = match result {
@@ -598,13 +571,11 @@ impl Worker {
                 };
                 let solved = Solved {
                     model: &face.model,
-                    x: fs.state.flat_positions(),
+                    x: fs.sequence.state().flat_positions(),
                     actuation: &actuation,
                 };
                 match geometry(&solved, overlays, &self.sources) {
                     Some(g) => {
-                        fs.good_x.clear();
-                        fs.good_x.extend_from_slice(fs.state.flat_positions());
                         let mut frame_stats = FrameStats::from_solve(&stats, 0.0);
                         frame_stats.reused = reused.is_some();
                         if reused.is_none() {

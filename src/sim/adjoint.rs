@@ -35,7 +35,7 @@ const ADJOINT_MAX_ITERATIONS: usize = 1000;
 /// The barrier's part of the Hessian at a state: exact (unprojected) 12×12 blocks in contact
 /// space, `∇²(κB)`, applied as `Wᵀ·H·W` (implicit differentiation needs the true Hessian).
 struct BarrierHessian<'a> {
-    face: &'a crate::contact::face::FaceContact,
+    face: &'a crate::contact::surface::FaceContact,
     blocks: Vec<crate::contact::HessianBlock>,
 }
 
@@ -191,8 +191,8 @@ impl Simulator {
             let h_lambda = b.contact_product(&lambda);
             for (i, binding) in b.face.bindings().iter().enumerate() {
                 let factor = binding.jaw_factor(bones);
-                if let crate::contact::face::ContactBinding::Rigid { rest, .. }
-                | crate::contact::face::ContactBinding::Bones { rest, .. } = binding
+                if let crate::contact::surface::ContactBinding::Rigid { rest, .. }
+                | crate::contact::surface::ContactBinding::Bones { rest, .. } = binding
                     && factor != nalgebra::Matrix3::zeros()
                 {
                     let jac = factor * bones.jaw_target_jacobian(&self.config.jaw_pivot, rest);

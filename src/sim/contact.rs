@@ -42,8 +42,8 @@ use super::attachment::BonePose;
 use super::global_matrix::GlobalMatrix;
 use super::low_rank::Curvature;
 use crate::contact::barrier::{initial_barrier_stiffness, update_barrier_stiffness};
-use crate::contact::face::{ContactBinding, FaceContact};
 use crate::contact::planar::DEFAULT_KEEP;
+use crate::contact::surface::{ContactBinding, FaceContact};
 use crate::contact::{
     BarrierPotential, Candidates, Collisions, ContactError, FixedPrimitives, HessianBlock,
     Projection, VerletList, planar_step_over,
@@ -696,7 +696,8 @@ impl<'a> ContactSolve<'a> {
 mod tests {
     use super::ContactStats;
     use crate::bench::mouth_poses::{LipField, MouthPose};
-    use crate::contact::face::{FaceContact, FaceContactSettings};
+    use crate::contact::surface::FaceContact;
+    use crate::model::contact_region::FaceContactSettings;
     use crate::sim::{BonePose, Quality, SimState, Simulator, SymTensor};
 
     /// The coarse neutral with contact, solved with the lips pressed and pursed so that

@@ -265,7 +265,8 @@ pub(crate) fn note_refusal(stats: &mut SolveStats, outcome: GateOutcome, attempt
 mod tests {
     use super::{ContactGate, GateOutcome};
     use crate::bench::mouth_poses::{LipField, MouthPose};
-    use crate::contact::face::{FaceContact, FaceContactSettings};
+    use crate::contact::surface::FaceContact;
+    use crate::model::contact_region::FaceContactSettings;
     use crate::sim::{BonePose, Quality, SimState, Simulator, SolveSettings, SolveStats};
 
     /// The coarse neutral with contact surfaces and its lip field.

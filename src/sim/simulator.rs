@@ -282,7 +282,10 @@ impl Simulator {
     /// simulation vertices they touch). Solves use it while [`SolveSettings::contact`] is on.
     ///
     /// [`SolveSettings::contact`]: super::SolveSettings::contact
-    pub fn set_contact(&mut self, face: crate::contact::face::FaceContact) -> Result<(), SimError> {
+    pub fn set_contact(
+        &mut self,
+        face: crate::contact::surface::FaceContact,
+    ) -> Result<(), SimError> {
         if face.sim_vertex_count() != self.vertex_count() {
             return Err(SimError::Setup(format!(
                 "contact surfaces built for {} simulation vertices, the mesh has {}",
@@ -308,7 +311,7 @@ impl Simulator {
     }
 
     /// The contact surfaces, if set up.
-    pub fn contact(&self) -> Option<&crate::contact::face::FaceContact> {
+    pub fn contact(&self) -> Option<&crate::contact::surface::FaceContact> {
         self.contact.as_ref().map(|c| &c.face)
     }
 

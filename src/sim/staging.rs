@@ -30,7 +30,7 @@ use super::low_rank::StepInverse;
 use super::shape_targeting::{LocalStep, STEP_VOLUME_KEPT, volume_step_limit};
 use super::simulator::{SimError, Simulator};
 use super::tensor::SymTensor;
-use crate::contact::face::ContactBinding;
+use crate::contact::surface::ContactBinding;
 
 /// A carry that would take some element past the volume limit is shortened to this fraction
 /// of the limit (so no element starts a stage at the limit itself).
@@ -523,7 +523,8 @@ mod tests {
     use super::super::solver::{MAX_POSE_STAGES, SHORTEST_WARM_STAGE};
     use super::{Bone, Clusters};
     use crate::bench::contact_sweep::random_codes;
-    use crate::contact::face::{FaceContact, FaceContactSettings};
+    use crate::contact::surface::FaceContact;
+    use crate::model::contact_region::FaceContactSettings;
     use crate::sim::{BonePose, Quality, Simulator};
 
     /// The bundled sample's neutral face with contact, and its actuation model.

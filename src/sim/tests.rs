@@ -6,7 +6,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use super::*;
-use crate::scene::SlabScene;
+use crate::slab::SlabScene;
 
 fn scene() -> SlabScene {
     SlabScene::with_cells([4, 4, 2], 0.25, 3).unwrap()

@@ -157,7 +157,7 @@ def main():
     shots = shots_of(args.shots)
     facesim = str(Path(args.facesim).resolve())
     if not os.access(facesim, os.X_OK):
-        sys.exit(f"no facesim binary at {facesim} (build it: cargo build --release -p facesim)")
+        sys.exit(f"no facesim binary at {facesim} (build it: cargo build --release -p facesim-cli)")
     sample = str(Path(args.sample).resolve())
     settings = settings_of(args)
     args.out.mkdir(parents=True, exist_ok=True)

@@ -44,7 +44,7 @@ pub fn open_sample_session(dir: &Path, quality: Quality, actuation: Actuation) -
         .context("computing the mapping heatmaps")?;
     let mut faces = sample.session_faces();
     if let Some(file) = actuation.network_file() {
-        let models = facesim::generative::face::load_sample_networks(&sample, file)
+        let models = facesim::generative::generative_face::load_sample_networks(&sample, file)
             .context("loading the sample's networks")?
             .with_context(|| {
                 format!(

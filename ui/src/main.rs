@@ -70,7 +70,7 @@ enum Command {
     },
     /// Simulate an animation track and write it out: the core formats (usd, pc2, obj, gltf)
     /// plus rrd, a rerun recording (README, "Export"). `--sample` and `--quality` apply.
-    Export(facesim::export::cli::ExportArgs),
+    Export(facesim_cli::export::ExportArgs),
 }
 
 /// Logs every frame of `session` to rerun.
@@ -106,7 +106,7 @@ fn main() -> Result<()> {
     };
     match cli.command {
         Some(Command::Export(args)) => {
-            facesim::export::cli::run(
+            facesim_cli::export::run(
                 &args,
                 &cli.sample,
                 cli.quality,

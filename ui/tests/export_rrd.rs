@@ -62,7 +62,7 @@ fn drawn_triangles(obj: &facesim::rig::obj::ObjMesh) -> usize {
     let overlay: usize = groups
         .iter()
         .enumerate()
-        .filter(|(_, g)| facesim::session::face::OVERLAY_PARTS.contains(&g.name.as_str()))
+        .filter(|(_, g)| facesim::session::session_face::OVERLAY_PARTS.contains(&g.name.as_str()))
         .map(|(k, g)| groups.get(k + 1).map_or(total, |n| n.first_face) - g.first_face)
         .sum();
     assert!(overlay > 0, "the export names the rig's parts");

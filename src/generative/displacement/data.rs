@@ -9,7 +9,7 @@ use faer::Mat;
 use crate::drive::Codes;
 use crate::generative::GenerativeError;
 use crate::generative::data::FacePoses;
-use crate::generative::face::FaceWarp;
+use crate::generative::generative_face::FaceWarp;
 use crate::generative::train::{Stage1Config, batch_picks, pose_index};
 
 /// One pose: codes and canonical displacement per vertex (cm).

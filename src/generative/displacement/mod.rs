@@ -29,7 +29,7 @@
 //! - [`face`]: the networks bound to one face: positions and jaw for a code.
 
 pub mod data;
-pub mod face;
+pub mod displacement_face;
 
 #[cfg(test)]
 mod tests;
@@ -46,7 +46,7 @@ use crate::drive::Codes;
 use crate::nn::{Checkpoint, Mlp, Pass};
 
 pub use data::DisplacementData;
-pub use face::DisplacementFace;
+pub use displacement_face::DisplacementFace;
 
 /// The baseline's file name next to the physics networks (`sample_models/ict/displacement.nn`).
 pub const SAMPLE_DISPLACEMENT: &str = "displacement.nn";

@@ -8,16 +8,17 @@ use faer::Par;
 use nalgebra::Point3;
 
 use super::{DisplacementData, DisplacementFace, DisplacementNets};
-use crate::contact::face::{FaceContact, FaceContactSettings};
+use crate::contact::surface::FaceContact;
 use crate::drive::Codes;
 use crate::generative::data::{PoseSettings, training_codes};
-use crate::generative::face::FaceWarp;
+use crate::generative::generative_face::FaceWarp;
 use crate::generative::loss::{LossWeights, LossWorkspace};
 use crate::generative::metrics::{VolumeChange, lip_crossings};
 use crate::generative::tests::{basis_poses, bits, frame, sample, small_config, tiny};
 use crate::generative::train::{ModelTrainer, train_model};
 use crate::generative::{GenerativeNets, LossRow};
 use crate::geometry::TetMesh;
+use crate::model::contact_region::FaceContactSettings;
 use crate::rig::test_support::temp_dir;
 use crate::sim::{BonePose, Quality};
 

@@ -1,13 +1,16 @@
 //! The `export` subcommand's arguments and runner, shared by the `facesim` CLI and the editor
-//! binary (which adds `rrd` through a [`SinkFactory`]); progress is an indicatif bar with ETA.
+//! binary (which adds `rrd` through a [`SinkFactory`]); progress is an indicatif bar with ETA
+//! (drawn only on a terminal).
 
 use std::path::{Path, PathBuf};
 
-use super::{ExportError, ExportJob, ExportSummary, Format, FrameRange, SinkFactory, export};
-use crate::sample::Sample;
-use crate::session::SessionFace;
-use crate::session::track::Track;
-use crate::sim::Quality;
+use facesim::export::{
+    ExportError, ExportJob, ExportSummary, Format, FrameRange, SinkFactory, choose_face, export,
+    render_settings,
+};
+use facesim::sample::Sample;
+use facesim::session::track::Track;
+use facesim::sim::Quality;
 
 /// `export TRACK.json --out DIR --format usd,pc2,obj,gltf [--fps 30] [--face NAME|INDEX]
 /// [--contact on|off] [--frames A..B [--lead-in 10]]` (`--sample` and `--quality` come from
@@ -62,50 +65,6 @@ fn parse_frames(s: &str) -> Result<(usize, usize), String> {
     Ok((first, end))
 }
 
-/// The preset if none is given here or in the track.
-pub const DEFAULT_QUALITY: Quality = Quality::Interactive;
-
-/// How the export renders: the command line's choice, else the track's, else the defaults
-/// (the interactive preset without contact: contact frames cost tens of seconds at the final
-/// preset today).
-pub fn render_settings(
-    quality: Option<Quality>,
-    contact: Option<bool>,
-    track: &Track,
-) -> (Quality, bool) {
-    (
-        quality.or(track.quality).unwrap_or(DEFAULT_QUALITY),
-        contact.or(track.contact).unwrap_or(false),
-    )
-}
-
-/// Picks the face: `--face` by name or index, else the track's face.
-pub fn choose_face(
-    faces: Vec<SessionFace>,
-    wanted: Option<&str>,
-    track: &Track,
-) -> Result<SessionFace, ExportError> {
-    let names: Vec<String> = faces.iter().map(|f| f.name.clone()).collect();
-    let key = wanted.unwrap_or(&track.face);
-    let index = names
-        .iter()
-        .position(|n| n == key)
-        .or_else(|| key.parse::<usize>().ok().filter(|&i| i < faces.len()));
-    match index {
-        Some(i) => Ok(faces.into_iter().nth(i).expect("index checked")),
-        None => Err(ExportError::Face(format!(
-            "the sample has no face '{key}'{} (faces: {}; indices 0–{})",
-            if wanted.is_none() {
-                " (the track's face; choose one with --face)"
-            } else {
-                ""
-            },
-            names.join(", "),
-            names.len().saturating_sub(1)
-        ))),
-    }
-}
-
 /// Runs an export as the CLI does: loads the sample and track, shows a progress bar, prints
 /// a summary. `quality` is the command line's `--quality`, if given.
 pub fn run(
@@ -143,7 +102,7 @@ pub fn run(
             lead_in: args.lead_in,
         }),
     };
-    let total = super::frame_count(track.duration(), args.fps);
+    let total = facesim::export::frame_count(track.duration(), args.fps);
     let (frames, which) = match args.frames {
         Some((first, end)) => (
             end.min(total).saturating_sub(first),
@@ -161,12 +120,9 @@ pub fn run(
         if contact { "on" } else { "off" },
         args.out.display()
     );
-    let bar = indicatif::ProgressBar::new(frames as u64);
-    bar.set_style(
-        indicatif::ProgressStyle::with_template(
-            "{bar:40} {pos}/{len} frames [{elapsed_precise}, ETA {eta_precise}] {per_sec}",
-        )
-        .expect("valid template"),
+    let bar = crate::progress::bar(
+        frames as u64,
+        "{bar:40} {pos}/{len} frames [{elapsed_precise}, ETA {eta_precise}] {per_sec}",
     );
     let summary = export(face, &track, &job, extra, &mut |done, _| {
         bar.set_position(done as u64)

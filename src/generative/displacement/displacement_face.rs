@@ -9,7 +9,7 @@ use nalgebra::Point3;
 use super::DisplacementNets;
 use crate::drive::{Codes, DriveError};
 use crate::generative::GenerativeError;
-use crate::generative::face::FaceWarp;
+use crate::generative::generative_face::FaceWarp;
 use crate::mapping::Mapping;
 use crate::model::FaceModel;
 use crate::nn::CodeBatch;

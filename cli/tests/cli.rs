@@ -2,8 +2,11 @@
 
 use std::process::Command;
 
+/// The binary, run from the repository's root (the CLI crate is `cli/`), as the README runs it.
 fn facesim() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_facesim"))
+    let mut command = Command::new(env!("CARGO_BIN_EXE_facesim"));
+    command.current_dir(concat!(env!("CARGO_MANIFEST_DIR"), "/.."));
+    command
 }
 
 /// Runs `command`, which must succeed (its stderr is the message otherwise); its stdout.
@@ -63,6 +66,36 @@ fn bench_solver_prints_a_table_and_writes_json() {
                 .all(|t| t["iterations"].as_u64().unwrap() < 5000)
         );
     }
+}
+
+/// `bench tradeoff --replot` redraws the table and the plot of a saved run (the README's
+/// picture comes from `docs/performance/tradeoff.json`) without solving.
+#[test]
+fn the_trade_plot_redraws_from_a_saved_run() {
+    let out = std::env::temp_dir().join(format!("facesim-replot-{}", std::process::id()));
+    let table = stdout_of(facesim().args(["bench", "tradeoff", "--replot"]).args([
+        "docs/performance/tradeoff.json",
+        "--out",
+        out.to_str().unwrap(),
+    ]));
+    assert_eq!(table.lines().count(), 11, "{table}");
+    assert!(
+        table.contains("| coarse | 4980 | final | on (always) |"),
+        "{table}"
+    );
+    assert_eq!(
+        std::fs::read_to_string(out.join("tradeoff.md")).unwrap(),
+        table
+    );
+    let png = std::fs::read(out.join("tradeoff.png")).unwrap();
+    assert_eq!(&png[..8], b"\x89PNG\r\n\x1a\n");
+    assert!(
+        !out.join("tradeoff.json").exists(),
+        "a replot writes no rows"
+    );
+    std::fs::remove_dir_all(&out).ok();
+    let bad = stderr_of_failure(facesim().args(["bench", "tradeoff", "--replot", "README.md"]));
+    assert!(bad.contains("is not a tradeoff.json"), "{bad}");
 }
 
 #[test]

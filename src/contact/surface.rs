@@ -1,13 +1,7 @@
-//! The face's contact surfaces: the lips, the inside of the mouth and the teeth, taken from
-//! the artist's full-resolution render surface (what the user sees is what must not
-//! intersect) and bound to the simulation as the render surface is.
-//!
-//! Only the part of the face where surfaces can meet takes part (the *contact region*):
-//! - the **lip line**: skin vertices that the mouth socket shares (the inner edge of the lips);
-//! - **lips and inner mouth**: face-skin and mouth-socket vertices within `lip_reach` (cm, at
-//!   rest) of the lip line;
-//! - **teeth**: upper- and lower-teeth vertices within `teeth_reach` of those (the front teeth
-//!   the lips can reach; molars stay out).
+//! A face's contact surfaces bound to its simulation: the lips, the inside of the mouth and the
+//! teeth, taken from the artist's full-resolution render surface (what the user sees is what
+//! must not intersect); which part of the face takes part is the model's choice
+//! (`model::contact_region` builds a [`FaceContact`] from a face model).
 //!
 //! Contact vertex `i` is either embedded, `yᵢ = Σⱼ wⱼ·x_{tet[j]}` (linear in the simulation
 //! positions `x`: `y = W·x`, so gradients pull back by `Wᵀ` and Hessians by `Wᵀ·H·W`), or
@@ -32,35 +26,15 @@
 
 use nalgebra::{Matrix3, Point3};
 use rayon::prelude::*;
-use serde::{Deserialize, Serialize};
 
 use super::ContactError;
 use super::candidates::{Candidates, EdgeFaceLayouts};
 use super::collisions::Collisions;
 use super::math::vertex;
-use super::mesh::{Cells, ContactMesh, NO_CELL};
+pub use super::mesh::NO_CELL;
+use super::mesh::{Cells, ContactMesh};
+use crate::geometry::bones::{Bone, BonePose};
 use crate::geometry::crossing::segment_crosses_triangle;
-use crate::model::{Binding, FaceModel};
-use crate::rig::Region;
-use crate::sim::{Bone, BonePose};
-
-/// Which part of the face takes part in contact.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-pub struct FaceContactSettings {
-    /// Skin and mouth-socket vertices within this distance of the lip line (cm, at rest).
-    pub lip_reach: f64,
-    /// Teeth vertices within this distance of the soft contact vertices (cm, at rest).
-    pub teeth_reach: f64,
-}
-
-impl Default for FaceContactSettings {
-    fn default() -> Self {
-        Self {
-            lip_reach: crate::model::bindings::TISSUE_LINING_REACH,
-            teeth_reach: 0.8,
-        }
-    }
-}
 
 /// How a contact vertex moves.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -70,7 +44,7 @@ pub enum ContactBinding {
     /// With a bone, from its rest position.
     Rigid { bone: Bone, rest: Point3<f64> },
     /// Between the bones (the deep mouth lining), by its jaw map
-    /// ([`crate::model::face::between_bones`]).
+    /// ([`BonePose::between_bones`]).
     Bones {
         jaw: Matrix3<f64>,
         rest: Point3<f64>,
@@ -116,6 +90,29 @@ const ON_SKULL: u16 = 1;
 const ON_JAW: u16 = 2;
 const BETWEEN_BONES: u16 = 3;
 
+/// What a face gives for its contact surface ([`FaceContact::from_parts`]), in the contact
+/// surface's own vertex numbering.
+#[derive(Clone, Debug)]
+pub struct SurfaceParts {
+    /// Render-surface index of every contact vertex.
+    pub render_vertices: Vec<u32>,
+    /// Rest positions, interleaved (cm).
+    pub rest: Vec<f64>,
+    pub faces: Vec<[u32; 3]>,
+    pub bindings: Vec<ContactBinding>,
+    /// Per vertex, the simulation element it lies in ([`NO_CELL`] for one the bones carry) and
+    /// whether it lies inside it (all barycentric weights ≥ 0).
+    pub cells: Vec<(u32, bool)>,
+    /// The barrier's activation distance (cm).
+    pub dhat: f64,
+    pub jaw_pivot: Point3<f64>,
+    pub sim_vertex_count: usize,
+    /// Counts per piece, for reports: lips/skin, mouth socket, upper teeth, lower teeth.
+    pub piece_counts: [usize; 4],
+    /// Rest positions of the lip line.
+    pub lip_line: Vec<Point3<f64>>,
+}
+
 /// The contact surfaces of one face, in their own vertex numbering (contact vertices).
 #[derive(Clone, Debug)]
 pub struct FaceContact {
@@ -139,112 +136,32 @@ pub struct FaceContact {
 }
 
 impl FaceContact {
-    /// The contact region of `model` (see the module doc).
-    pub fn new(model: &FaceModel, settings: &FaceContactSettings) -> Result<Self, ContactError> {
-        let finite = settings.lip_reach.is_finite() && settings.teeth_reach.is_finite();
-        if !(settings.lip_reach > 0.0 && settings.teeth_reach >= 0.0 && finite) {
-            return Err(ContactError::InvalidParameter(format!(
-                "contact region reaches must be finite and positive, got {settings:?}"
+    /// The contact surface of `parts`, bound to a simulation of tetrahedra `tets`: groups by
+    /// binding (only the tissue moves against what the bones carry), the pairs within d̂ at rest
+    /// with their own activation distance, the elements primitives lie in, and the crossings
+    /// already there at rest.
+    pub fn from_parts(parts: SurfaceParts, tets: &[[u32; 4]]) -> Result<Self, ContactError> {
+        let SurfaceParts {
+            render_vertices,
+            rest,
+            faces,
+            bindings,
+            cells: of_vertex_inside,
+            dhat,
+            jaw_pivot,
+            sim_vertex_count,
+            piece_counts,
+            lip_line,
+        } = parts;
+        let n = render_vertices.len();
+        if rest.len() != 3 * n || bindings.len() != n || of_vertex_inside.len() != n {
+            return Err(ContactError::InvalidMesh(format!(
+                "{n} contact vertices with {} rest values, {} bindings and {} cells",
+                rest.len(),
+                bindings.len(),
+                of_vertex_inside.len()
             )));
         }
-        let render = &model.render;
-        let region: Vec<Option<Region>> = render
-            .rig_vertices
-            .iter()
-            .map(|&v| Region::of_vertex(v as usize))
-            .collect();
-        let is = |i: u32, r: Region| region[i as usize] == Some(r);
-        // The lip line: skin vertices used by mouth-socket triangles.
-        let mut lip_line = vec![false; render.rest.len()];
-        for t in &render.triangles {
-            if t.iter().any(|&v| is(v, Region::MouthSocket)) {
-                for &v in t.iter().filter(|&&v| is(v, Region::FaceSkin)) {
-                    lip_line[v as usize] = true;
-                }
-            }
-        }
-        let line_points: Vec<Point3<f64>> = (0..render.rest.len())
-            .filter(|&i| lip_line[i])
-            .map(|i| render.rest[i])
-            .collect();
-        if line_points.is_empty() {
-            return Err(ContactError::InvalidMesh(
-                "the render surface has no lip line (no skin vertex shared with the mouth socket)"
-                    .into(),
-            ));
-        }
-        let near = |p: &Point3<f64>, points: &[Point3<f64>], r: f64| {
-            let r2 = r * r;
-            points.iter().any(|q| (p - q).norm_squared() <= r2)
-        };
-        let soft: Vec<bool> = (0..render.rest.len())
-            .into_par_iter()
-            .map(|i| {
-                matches!(region[i], Some(Region::FaceSkin | Region::MouthSocket))
-                    && near(&render.rest[i], &line_points, settings.lip_reach)
-            })
-            .collect();
-        let soft_points: Vec<Point3<f64>> = (0..render.rest.len())
-            .filter(|&i| soft[i])
-            .map(|i| render.rest[i])
-            .collect();
-        let chosen: Vec<bool> = (0..render.rest.len())
-            .into_par_iter()
-            .map(|i| {
-                soft[i]
-                    || (matches!(region[i], Some(Region::UpperTeeth | Region::LowerTeeth))
-                        && near(&render.rest[i], &soft_points, settings.teeth_reach))
-            })
-            .collect();
-        let triangles: Vec<[u32; 3]> = render
-            .triangles
-            .iter()
-            .filter(|t| t.iter().all(|&v| chosen[v as usize]))
-            .copied()
-            .collect();
-        let mut used = vec![u32::MAX; render.rest.len()];
-        let mut render_vertices = Vec::new();
-        for t in &triangles {
-            for &v in t {
-                if used[v as usize] == u32::MAX {
-                    used[v as usize] = 0;
-                }
-            }
-        }
-        for (i, slot) in used.iter_mut().enumerate() {
-            if *slot == 0 {
-                *slot = render_vertices.len() as u32;
-                render_vertices.push(i as u32);
-            }
-        }
-        let faces: Vec<[u32; 3]> = triangles
-            .iter()
-            .map(|t| t.map(|v| used[v as usize]))
-            .collect();
-        let bindings: Vec<ContactBinding> = render_vertices
-            .iter()
-            .map(|&r| match render.bindings[r as usize] {
-                Binding::Embedded { element, weights } => Ok(ContactBinding::Embedded {
-                    tet: model.mesh.tets[element as usize],
-                    weights,
-                }),
-                Binding::Rigid(bone) => Ok(ContactBinding::Rigid {
-                    bone,
-                    rest: render.rest[r as usize],
-                }),
-                Binding::Bones { jaw } => Ok(ContactBinding::Bones {
-                    jaw,
-                    rest: render.rest[r as usize],
-                }),
-                // Only skin far from the mouth, on the skull, is blended; a contact surface
-                // reaching it would need an affine binding with a pose-dependent offset.
-                Binding::Blended { .. } => Err(ContactError::InvalidMesh(format!(
-                    "render vertex {r} of the contact region is blended between the tissue and \
-                     the skull (skin outside the tissue); contact takes embedded or rigid \
-                     vertices only: lower lip_reach/teeth_reach"
-                ))),
-            })
-            .collect::<Result<_, _>>()?;
         let group: Vec<u16> = bindings
             .iter()
             .map(|b| match b {
@@ -265,15 +182,7 @@ impl FaceContact {
             vec![true, false, false, false],
             vec![true, false, false, false],
         ];
-        let rest: Vec<f64> = render_vertices
-            .iter()
-            .flat_map(|&r| {
-                let p = render.rest[r as usize];
-                [p.x, p.y, p.z]
-            })
-            .collect();
         let mesh = ContactMesh::with_groups(&rest, faces, group, &can_touch)?;
-        let dhat = model.d_hat;
         // Pairs within d̂ at rest are neighbours along the surface: their barrier acts only
         // once they have closed half their rest gap.
         let candidates = Candidates::build(&mesh, &rest, dhat)?;
@@ -303,17 +212,9 @@ impl FaceContact {
             })
             .collect();
         let mesh = mesh.with_close_pairs(close_pt, close_ee);
-        let (of_vertex, inside): (Vec<u32>, Vec<bool>) = render_vertices
-            .iter()
-            .map(|&r| match render.bindings[r as usize] {
-                Binding::Embedded { element, weights } => {
-                    (element, weights.iter().all(|&w| w >= 0.0))
-                }
-                _ => (NO_CELL, false),
-            })
-            .unzip();
+        let (of_vertex, inside): (Vec<u32>, Vec<bool>) = of_vertex_inside.into_iter().unzip();
         let cells = Cells {
-            face_neighbours: face_neighbours(&model.mesh.tets, &of_vertex),
+            face_neighbours: face_neighbours(tets, &of_vertex),
             of_vertex,
             inside,
         };
@@ -328,28 +229,18 @@ impl FaceContact {
             .collect();
         region_sim_vertices.sort_unstable();
         region_sim_vertices.dedup();
-        let mut piece_counts = [0; 4];
-        for &r in &render_vertices {
-            let k = match region[r as usize] {
-                Some(Region::FaceSkin) => 0,
-                Some(Region::MouthSocket) => 1,
-                Some(Region::UpperTeeth) => 2,
-                _ => 3,
-            };
-            piece_counts[k] += 1;
-        }
         let crossing_layouts = EdgeFaceLayouts::new(&mesh, &rest);
         let mut contact = Self {
             render_vertices,
             bindings,
             mesh,
             dhat,
-            jaw_pivot: model.jaw_pivot,
-            sim_vertex_count: model.mesh.vertex_count(),
+            jaw_pivot,
+            sim_vertex_count,
             rest_crossings: Vec::new(),
             region_sim_vertices,
             piece_counts,
-            lip_line: line_points,
+            lip_line,
             crossing_layouts,
         };
         contact.rest_crossings = contact.crossings(&rest, false);
@@ -423,9 +314,7 @@ impl FaceContact {
                 crate::geometry::embedding::interpolate(tet, weights, x)
             }
             ContactBinding::Rigid { bone, rest } => bones.target(*bone, &self.jaw_pivot, rest),
-            ContactBinding::Bones { jaw, rest } => {
-                crate::model::face::between_bones(jaw, bones, &self.jaw_pivot, rest)
-            }
+            ContactBinding::Bones { jaw, rest } => bones.between_bones(jaw, &self.jaw_pivot, rest),
         }
     }
 

@@ -1,0 +1,187 @@
+//! Which part of a face takes part in contact (the *contact region*), and the face's contact
+//! surface built from it ([`FaceContact::new`]):
+//! - the **lip line**: skin vertices that the mouth socket shares (the inner edge of the lips);
+//! - **lips and inner mouth**: face-skin and mouth-socket vertices within `lip_reach` (cm, at
+//!   rest) of the lip line;
+//! - **teeth**: upper- and lower-teeth vertices within `teeth_reach` of those (the front teeth
+//!   the lips can reach; molars stay out).
+//!
+//! Each contact vertex is bound to the simulation as its render vertex is.
+
+use nalgebra::Point3;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use super::{Binding, FaceModel};
+use crate::contact::ContactError;
+use crate::contact::surface::{ContactBinding, FaceContact, NO_CELL, SurfaceParts};
+use crate::rig::Region;
+
+/// Which part of the face takes part in contact.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct FaceContactSettings {
+    /// Skin and mouth-socket vertices within this distance of the lip line (cm, at rest).
+    pub lip_reach: f64,
+    /// Teeth vertices within this distance of the soft contact vertices (cm, at rest).
+    pub teeth_reach: f64,
+}
+
+impl Default for FaceContactSettings {
+    fn default() -> Self {
+        Self {
+            lip_reach: super::bindings::TISSUE_LINING_REACH,
+            teeth_reach: 0.8,
+        }
+    }
+}
+
+impl FaceContact {
+    /// The contact surface of `model`'s contact region (see the module doc).
+    pub fn new(model: &FaceModel, settings: &FaceContactSettings) -> Result<Self, ContactError> {
+        let finite = settings.lip_reach.is_finite() && settings.teeth_reach.is_finite();
+        if !(settings.lip_reach > 0.0 && settings.teeth_reach >= 0.0 && finite) {
+            return Err(ContactError::InvalidParameter(format!(
+                "contact region reaches must be finite and positive, got {settings:?}"
+            )));
+        }
+        let render = &model.render;
+        let region: Vec<Option<Region>> = render
+            .rig_vertices
+            .iter()
+            .map(|&v| Region::of_vertex(v as usize))
+            .collect();
+        let is = |i: u32, r: Region| region[i as usize] == Some(r);
+        // The lip line: skin vertices used by mouth-socket triangles.
+        let mut lip_line = vec![false; render.rest.len()];
+        for t in &render.triangles {
+            if t.iter().any(|&v| is(v, Region::MouthSocket)) {
+                for &v in t.iter().filter(|&&v| is(v, Region::FaceSkin)) {
+                    lip_line[v as usize] = true;
+                }
+            }
+        }
+        let line_points: Vec<Point3<f64>> = (0..render.rest.len())
+            .filter(|&i| lip_line[i])
+            .map(|i| render.rest[i])
+            .collect();
+        if line_points.is_empty() {
+            return Err(ContactError::InvalidMesh(
+                "the render surface has no lip line (no skin vertex shared with the mouth socket)"
+                    .into(),
+            ));
+        }
+        let near = |p: &Point3<f64>, points: &[Point3<f64>], r: f64| {
+            let r2 = r * r;
+            points.iter().any(|q| (p - q).norm_squared() <= r2)
+        };
+        let soft: Vec<bool> = (0..render.rest.len())
+            .into_par_iter()
+            .map(|i| {
+                matches!(region[i], Some(Region::FaceSkin | Region::MouthSocket))
+                    && near(&render.rest[i], &line_points, settings.lip_reach)
+            })
+            .collect();
+        let soft_points: Vec<Point3<f64>> = (0..render.rest.len())
+            .filter(|&i| soft[i])
+            .map(|i| render.rest[i])
+            .collect();
+        let chosen: Vec<bool> = (0..render.rest.len())
+            .into_par_iter()
+            .map(|i| {
+                soft[i]
+                    || (matches!(region[i], Some(Region::UpperTeeth | Region::LowerTeeth))
+                        && near(&render.rest[i], &soft_points, settings.teeth_reach))
+            })
+            .collect();
+        let triangles: Vec<[u32; 3]> = render
+            .triangles
+            .iter()
+            .filter(|t| t.iter().all(|&v| chosen[v as usize]))
+            .copied()
+            .collect();
+        let mut used = vec![u32::MAX; render.rest.len()];
+        let mut render_vertices = Vec::new();
+        for t in &triangles {
+            for &v in t {
+                if used[v as usize] == u32::MAX {
+                    used[v as usize] = 0;
+                }
+            }
+        }
+        for (i, slot) in used.iter_mut().enumerate() {
+            if *slot == 0 {
+                *slot = render_vertices.len() as u32;
+                render_vertices.push(i as u32);
+            }
+        }
+        let faces: Vec<[u32; 3]> = triangles
+            .iter()
+            .map(|t| t.map(|v| used[v as usize]))
+            .collect();
+        let bindings: Vec<ContactBinding> = render_vertices
+            .iter()
+            .map(|&r| match render.bindings[r as usize] {
+                Binding::Embedded { element, weights } => Ok(ContactBinding::Embedded {
+                    tet: model.mesh.tets[element as usize],
+                    weights,
+                }),
+                Binding::Rigid(bone) => Ok(ContactBinding::Rigid {
+                    bone,
+                    rest: render.rest[r as usize],
+                }),
+                Binding::Bones { jaw } => Ok(ContactBinding::Bones {
+                    jaw,
+                    rest: render.rest[r as usize],
+                }),
+                // Only skin far from the mouth, on the skull, is blended; a contact surface
+                // reaching it would need an affine binding with a pose-dependent offset.
+                Binding::Blended { .. } => Err(ContactError::InvalidMesh(format!(
+                    "render vertex {r} of the contact region is blended between the tissue and \
+                     the skull (skin outside the tissue); contact takes embedded or rigid \
+                     vertices only: lower lip_reach/teeth_reach"
+                ))),
+            })
+            .collect::<Result<_, _>>()?;
+        let rest: Vec<f64> = render_vertices
+            .iter()
+            .flat_map(|&r| {
+                let p = render.rest[r as usize];
+                [p.x, p.y, p.z]
+            })
+            .collect();
+        let cells: Vec<(u32, bool)> = render_vertices
+            .iter()
+            .map(|&r| match render.bindings[r as usize] {
+                Binding::Embedded { element, weights } => {
+                    (element, weights.iter().all(|&w| w >= 0.0))
+                }
+                _ => (NO_CELL, false),
+            })
+            .collect();
+        let mut piece_counts = [0; 4];
+        for &r in &render_vertices {
+            let k = match region[r as usize] {
+                Some(Region::FaceSkin) => 0,
+                Some(Region::MouthSocket) => 1,
+                Some(Region::UpperTeeth) => 2,
+                _ => 3,
+            };
+            piece_counts[k] += 1;
+        }
+        FaceContact::from_parts(
+            SurfaceParts {
+                render_vertices,
+                rest,
+                faces,
+                bindings,
+                cells,
+                dhat: model.d_hat,
+                jaw_pivot: model.jaw_pivot,
+                sim_vertex_count: model.mesh.vertex_count(),
+                piece_counts,
+                lip_line: line_points,
+            },
+            &model.mesh.tets,
+        )
+    }
+}
