@@ -15,7 +15,11 @@
 //!   within 1e-3 rad of parallel) both libraries lose digits in proportion to the condition
 //!   number `c` given with each, and the bound is `1e-14·c` (reported separately);
 //! - CCD: ours (additive CCD, η = 0.9) never exceeds Tight Inclusion's certified time of
-//!   impact, and equals ipctk's additive CCD to `1e-9` (same algorithm).
+//!   impact, and equals ipctk's additive CCD to `1e-9` (same algorithm);
+//! - the OGC trust region (`contact::trust_region` against `ipctk.ogc.TrustRegion`): per-vertex
+//!   radii and filtered steps to `1e-12`, on sheets apart, nearly touching, and touching (a
+//!   radius of 0, where ipctk's truncation is 0/0 and lets the vertex move unfiltered, and
+//!   ours keeps it still).
 //!
 //! If ipctk cannot be imported the test FAILS with instructions (CI installs it in .ci/run).
 //! `cargo test --release --test contact_ipctk -- --ignored --nocapture` runs the benchmark.
@@ -35,8 +39,8 @@ use facesim::contact::distance::{
     point_triangle_distance_type, point_triangle_distance_typed,
 };
 use facesim::contact::{
-    BarrierPotential, CcdOptions, Collisions, ContactMesh, Projection, assemble_dense, barrier,
-    barrier_first_derivative, barrier_second_derivative, ccd,
+    BarrierPotential, CcdOptions, Collisions, ContactMesh, Projection, TrustRegion, assemble_dense,
+    barrier, barrier_first_derivative, barrier_second_derivative, ccd,
 };
 use nalgebra::Vector3;
 use rand::{Rng, SeedableRng};
@@ -1101,4 +1105,125 @@ fn benchmark_against_ipctk() {
         println!("           potential values agree to {rel:.1e}");
         assert!(rel < 1e-10);
     }
+}
+
+/// The OGC trust region against `ipctk.ogc.TrustRegion`: radii at the positions, then the
+/// filtered step, on two sheets at several gaps (steps small, large and zero), with a vertex
+/// touching the other sheet as the degenerate case.
+#[test]
+fn trust_region_matches_ipctk_ogc() {
+    let mut rng = ChaCha8Rng::seed_from_u64(11);
+    let dhat = 0.05;
+    let mut cases = Vec::new();
+    for (k, (gap, step)) in [
+        (0.3, 0.2),
+        (0.06, 0.05),
+        (0.01, 0.01),
+        (0.002, 0.3),
+        (0.06, 0.0),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let (x, faces) = two_sheets(7, 1.0, gap, 0.2, 0.004, 40 + k as u64);
+        let dx: Vec<f64> = (0..x.len())
+            .map(|_| rng.random_range(-step..=step))
+            .collect();
+        cases.push((x, faces, dx, false));
+    }
+    // Touching: the upper sheet's middle vertex moved onto the lower sheet's middle vertex.
+    let (mut x, faces) = two_sheets(7, 1.0, 0.05, 0.2, 1e-4, 47);
+    let (top, bottom) = (49 + 24, 24);
+    for c in 0..3 {
+        x[3 * top + c] = x[3 * bottom + c];
+    }
+    let dx: Vec<f64> = (0..x.len())
+        .map(|_| rng.random_range(-0.01..=0.01))
+        .collect();
+    cases.push((x, faces, dx, true));
+
+    let input = json!({
+        "cases": cases.iter().map(|(x, faces, dx, _)| json!({
+            "vertices": x.chunks(3).collect::<Vec<_>>(),
+            "faces": faces,
+            "dhat": dhat,
+            "dx": dx.chunks(3).collect::<Vec<_>>(),
+        })).collect::<Vec<_>>(),
+    });
+    let theirs = run_reference("trust_region", &input);
+    let mut clamped_cases = 0;
+    for (k, ((x, faces, dx, touching), t)) in cases
+        .iter()
+        .zip(theirs["cases"].as_array().unwrap())
+        .enumerate()
+    {
+        assert_eq!(
+            t["relaxed_radius_scaling"].as_f64().unwrap(),
+            facesim::contact::trust_region::RELAXED_RADIUS_SCALING
+        );
+        let mesh = ContactMesh::new(x, faces.clone()).unwrap();
+        let mut region = TrustRegion::new(dhat).unwrap();
+        region.update(&mesh, x).unwrap();
+        let radii = floats(&t["radii"]);
+        assert_eq!(
+            *touching,
+            radii.contains(&0.0),
+            "case {k}: radius 0 where touching"
+        );
+        let err = region
+            .radii
+            .iter()
+            .zip(&radii)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f64::max);
+        assert!(err <= 1e-12, "case {k}: radii differ by {err:e}");
+        let mut ours = dx.clone();
+        let clamped = region.filter_step(x, &mut ours).unwrap();
+        clamped_cases += usize::from(clamped > 0);
+        let filtered = floats(&t["dx"]);
+        for v in 0..radii.len() {
+            let (a, b) = (&ours[3 * v..3 * v + 3], &filtered[3 * v..3 * v + 3]);
+            if *touching && radii[v] == 0.0 {
+                // ipctk's β is 0/0 here (NaN fails its `β < 1` test): the step passes
+                // (up to the last digit JSON's decimal round trip may change).
+                let unfiltered = b
+                    .iter()
+                    .zip(&dx[3 * v..3 * v + 3])
+                    .all(|(p, q)| (p - q).abs() <= 1e-15);
+                assert!(unfiltered, "case {k} vertex {v}: {b:?}");
+                assert_eq!(
+                    a,
+                    &[0.0, 0.0, 0.0],
+                    "case {k} vertex {v}: a touching vertex stays"
+                );
+                continue;
+            }
+            let e = a
+                .iter()
+                .zip(b)
+                .map(|(p, q)| (p - q).abs())
+                .fold(0.0, f64::max);
+            assert!(e <= 1e-12, "case {k} vertex {v}: {a:?} against {b:?}");
+        }
+        // ipctk's flag starts set and only a time step's warm start clears it, so it is
+        // compared where a filter sets it: ours asks for a new region exactly when more than
+        // 1 % of the vertices were clamped.
+        let many = clamped as f64 > 0.01 * radii.len() as f64;
+        assert_eq!(region.should_update, many, "case {k}");
+        if many {
+            assert!(t["should_update"].as_bool().unwrap(), "case {k}");
+        }
+        // Every filtered vertex ends in its ball.
+        for v in 0..radii.len() {
+            let moved = Vector3::new(ours[3 * v], ours[3 * v + 1], ours[3 * v + 2]).norm();
+            assert!(
+                moved <= region.radii[v] * (1.0 + 1e-12) + 1e-15,
+                "case {k} vertex {v}"
+            );
+        }
+    }
+    assert!(
+        clamped_cases >= 4,
+        "the cases exercise the filter ({clamped_cases})"
+    );
 }

@@ -30,6 +30,7 @@ pub mod potential;
 pub mod surface;
 #[cfg(test)]
 mod test_scenes;
+pub mod trust_region;
 pub mod verlet;
 
 pub use barrier::{barrier, barrier_first_derivative, barrier_second_derivative};
@@ -44,6 +45,7 @@ pub use planar::{PlanarReport, planar_step_over};
 pub use potential::{
     BarrierPotential, HessianBlock, Projection, add_hessian_product, assemble_dense,
 };
+pub use trust_region::TrustRegion;
 pub use verlet::VerletList;
 
 /// Errors at the contact module's boundary.

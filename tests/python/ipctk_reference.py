@@ -4,6 +4,7 @@
 Usage:
     ipctk_reference.py validate IN.json OUT.json   # per-configuration quantities
     ipctk_reference.py bench IN.json OUT.json      # timings of the barrier potential on a scene
+    ipctk_reference.py trust_region IN.json OUT.json  # OGC trust-region radii and filtered steps
 
 Input and output are JSON written and read by the Rust test; floats round-trip exactly.
 All distances are squared, as in ipctk. Nothing here is compared: the Rust side compares.
@@ -178,13 +179,34 @@ def bench(data):
     return out
 
 
+def trust_region(data):
+    """ipctk.ogc.TrustRegion at each case's positions: its radii, then its filter of dx."""
+    out = []
+    for case in data["cases"]:
+        V = np.asfortranarray(np.array(case["vertices"], dtype=float))
+        F = np.asfortranarray(np.array(case["faces"], dtype=np.int32))
+        mesh = ipctk.CollisionMesh(V, np.asfortranarray(ipctk.edges(F)), F)
+        region = ipctk.ogc.TrustRegion(case["dhat"])
+        region.update(mesh, V, ipctk.NormalCollisions())
+        dx = np.asfortranarray(np.array(case["dx"], dtype=float))
+        region.filter_step(mesh, V, dx)
+        out.append({
+            "radii": region.trust_region_radii.tolist(),
+            "dx": dx.tolist(),
+            "should_update": bool(region.should_update_trust_region),
+            "relaxed_radius_scaling": region.relaxed_radius_scaling,
+        })
+    return {"cases": out}
+
+
 def main():
-    if len(sys.argv) != 4 or sys.argv[1] not in ("validate", "bench"):
+    modes = {"validate": validate, "bench": bench, "trust_region": trust_region}
+    if len(sys.argv) != 4 or sys.argv[1] not in modes:
         print(__doc__, file=sys.stderr)
         sys.exit(2)
     with open(sys.argv[2]) as f:
         data = json.load(f)
-    result = validate(data) if sys.argv[1] == "validate" else bench(data)
+    result = modes[sys.argv[1]](data)
     with open(sys.argv[3], "w") as f:
         json.dump(result, f)
 
