@@ -51,10 +51,12 @@ pub enum Recovery {
 /// [`Simulator`] or a reference to one).
 pub struct Sequence<S: Borrow<Simulator>> {
     sim: S,
-    /// The last frame's state: where the next solve starts.
+    /// The last good frame's state: where the next solve starts.
     state: SimState,
-    /// The last good frame's state (what a failure restores).
-    good: SimState,
+    /// The last good frame's positions, what a failure restores (only the positions: copying
+    /// the whole state, with its solver memory and contact cache, at every frame would cost
+    /// the editor more than a fresh memory costs the one frame after a failure).
+    good: Vec<f64>,
     /// `state` holds no crossings: rest, or solved with contact.
     crossing_free: bool,
     recovery: Recovery,
@@ -65,7 +67,7 @@ impl<S: Borrow<Simulator>> Sequence<S> {
     pub fn new(sim: S) -> Self {
         let state = sim.borrow().rest_state();
         Sequence {
-            good: state.clone(),
+            good: state.flat_positions().to_vec(),
             state,
             sim,
             crossing_free: true,
@@ -91,8 +93,13 @@ impl<S: Borrow<Simulator>> Sequence<S> {
     /// Starts the next frame from rest.
     pub fn restart(&mut self) {
         self.state = self.simulator().rest_state();
-        self.good.clone_from(&self.state);
+        self.keep_good();
         self.crossing_free = true;
+    }
+
+    fn keep_good(&mut self) {
+        self.good.clear();
+        self.good.extend_from_slice(self.state.flat_positions());
     }
 
     /// Solves one frame under `actuations` (one per element) and `bones`, from the last good
@@ -117,11 +124,21 @@ impl<S: Borrow<Simulator>> Sequence<S> {
         match &result {
             Ok(_) => {
                 self.crossing_free = settings.contact;
-                self.good.clone_from(&self.state);
+                self.keep_good();
             }
             // The last good frame was as free of crossings as the start was.
             Err(_) => match self.recovery {
-                Recovery::LastGood => self.state.clone_from(&self.good),
+                Recovery::LastGood => {
+                    let good: Vec<_> = self
+                        .good
+                        .chunks_exact(3)
+                        .map(|p| nalgebra::Point3::new(p[0], p[1], p[2]))
+                        .collect();
+                    self.state = self
+                        .simulator()
+                        .state_at(&good)
+                        .expect("the last good frame is a state of this simulator");
+                }
                 Recovery::Rest => self.restart(),
             },
         }
