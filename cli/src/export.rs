@@ -12,9 +12,11 @@ use facesim::sample::Sample;
 use facesim::session::track::Track;
 use facesim::sim::Quality;
 
+use crate::actuation::{Actuation, sample_faces};
+
 /// `export TRACK.json --out DIR --format usd,pc2,obj,gltf [--fps 30] [--face NAME|INDEX]
-/// [--contact on|off] [--frames A..B [--lead-in 10]]` (`--sample` and `--quality` come from
-/// the binary).
+/// [--contact on|off] [--frames A..B [--lead-in 10]]` (`--sample`, `--quality` and
+/// `--actuation` come from the binary).
 #[derive(Clone, Debug, clap::Args)]
 pub struct ExportArgs {
     /// The animation track (facesim-track JSON, e.g. saved by the editor's timeline).
@@ -66,11 +68,13 @@ fn parse_frames(s: &str) -> Result<(usize, usize), String> {
 }
 
 /// Runs an export as the CLI does: loads the sample and track, shows a progress bar, prints
-/// a summary. `quality` is the command line's `--quality`, if given.
+/// a summary. `quality` is the command line's `--quality`, if given; `actuation` what drives
+/// the face.
 pub fn run(
     args: &ExportArgs,
     sample_dir: &Path,
     quality: Option<Quality>,
+    actuation: Actuation,
     extra: Option<&dyn SinkFactory>,
 ) -> anyhow::Result<ExportSummary> {
     use anyhow::Context as _;
@@ -81,7 +85,11 @@ pub fn run(
         .with_context(|| format!("loading the track {}", args.track.display()))?;
     let sample = Sample::load(sample_dir)
         .with_context(|| format!("loading the sample from {}", sample_dir.display()))?;
-    let face = choose_face(sample.session_faces(), args.face.as_deref(), &track)?;
+    let face = choose_face(
+        sample_faces(&sample, actuation)?,
+        args.face.as_deref(),
+        &track,
+    )?;
     let (quality, contact) = render_settings(quality, args.contact, &track);
     let name = args
         .track
@@ -112,7 +120,7 @@ pub fn run(
     };
     eprintln!(
         "exporting {} ({:.2} s, {which} at {} fps) on {} at the {quality} preset, \
-         contact {} → {}",
+         contact {}, actuation {actuation} → {}",
         args.track.display(),
         track.duration(),
         args.fps,

@@ -121,6 +121,82 @@ fn bad_arguments_fail_with_a_message() {
     assert!(export("400..500").contains("hold none of the track's 301 frames"));
 }
 
+/// `export --actuation networks` drives the face with the sample's networks through its φ: the
+/// same frames as with its basis, solved from other actuations, so other positions.
+#[test]
+fn export_drives_the_face_with_the_chosen_actuation() {
+    let dir = std::env::temp_dir().join(format!("facesim-cli-actuation-{}", std::process::id()));
+    let export = |actuation: &str| {
+        let out = dir.join(actuation);
+        let status = facesim()
+            .args(["export", "examples/tracks/smile.json", "--format", "pc2"])
+            .args([
+                "--frames",
+                "45..47",
+                "--lead-in",
+                "0",
+                "--face",
+                "identity000",
+            ])
+            .args(["--actuation", actuation, "--out"])
+            .arg(&out)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&status.stderr).into_owned();
+        assert!(status.status.success(), "{err}");
+        assert!(err.contains(&format!("actuation {actuation}")), "{err}");
+        facesim::export::pc2::read(&out.join("smile.pc2"))
+            .unwrap()
+            .1
+    };
+    let (basis, networks) = (export("basis"), export("networks"));
+    assert_eq!((basis.len(), networks.len()), (2, 2));
+    let apart = basis[1]
+        .iter()
+        .zip(&networks[1])
+        .map(|(a, b)| (0..3).map(|k| (a[k] - b[k]).abs()).fold(0.0, f32::max))
+        .fold(0.0, f32::max);
+    assert!(
+        apart > 1e-3 && apart < 2.0,
+        "the exports differ by up to {apart} cm"
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// `add-face` refuses a mesh off the rig's topology, naming the file and what it needs, and
+/// leaves the sample as it was.
+#[test]
+fn add_face_refuses_a_mesh_off_the_rigs_topology() {
+    let dir = std::env::temp_dir().join(format!("facesim-cli-add-face-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let sample = concat!(env!("CARGO_MANIFEST_DIR"), "/../sample_models/ict");
+    for file in ["sample.json", "neutral-coarse.face"] {
+        std::fs::copy(format!("{sample}/{file}"), dir.join(file)).unwrap();
+    }
+    let scan = dir.join("scan.obj");
+    std::fs::write(&scan, "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n").unwrap();
+    let arg = std::ffi::OsStr::new;
+    let rig = rig_dir();
+    let message = stderr_of_failure(facesim().args([
+        arg("add-face"),
+        scan.as_os_str(),
+        arg("--sample"),
+        dir.as_os_str(),
+        arg("--rig"),
+        arg(&rig),
+    ]));
+    assert!(
+        message.contains("scan.obj: has 3 vertices") && message.contains("rig's topology"),
+        "{message}"
+    );
+    let manifest = std::fs::read_to_string(dir.join("sample.json")).unwrap();
+    assert_eq!(
+        manifest,
+        std::fs::read_to_string(format!("{sample}/sample.json")).unwrap()
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 /// The displacement baseline end to end: `train --stage displacement` (a few poses per face,
 /// 3 iterations) writes its networks and loss curve; `eval --displacement … --transfer` poses
 /// a held-out code with it beside the physics models and writes the transfer table.

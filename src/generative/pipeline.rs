@@ -2,6 +2,7 @@
 //! the stage-1 poses of every face (fitted once, cached in `OUT/poses`), each stage's data and
 //! defaults, the networks bound to every face, and the style-transfer pairs.
 
+use std::borrow::Cow;
 use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -180,16 +181,22 @@ fn stage1_poses(
     Ok(out)
 }
 
-/// The rig, loaded on first use.
+/// The rig as the sample's faces need it (`Sample::rig_for`), loaded on first use.
 struct LazyRig<'a> {
     load: &'a dyn Fn() -> Result<FaceRig, RigError>,
+    sample: &'a Sample,
     rig: Option<FaceRig>,
 }
 
 impl LazyRig<'_> {
     fn get(&mut self) -> Result<&FaceRig, RunError> {
         if self.rig.is_none() {
-            self.rig = Some((self.load)()?);
+            let rig = (self.load)()?;
+            let rig = match self.sample.rig_for(&rig).map_err(Box::new)? {
+                Cow::Owned(extended) => extended,
+                Cow::Borrowed(_) => rig,
+            };
+            self.rig = Some(rig);
         }
         Ok(self.rig.as_ref().expect("loaded above"))
     }
@@ -257,6 +264,7 @@ pub fn train_sample(
     };
     let mut rig = LazyRig {
         load: load_rig,
+        sample,
         rig: None,
     };
     let poses = stage1_poses(sample, &mut rig, &a.out.join("poses"), &settings, events)?;
@@ -426,6 +434,7 @@ pub fn evaluate_sample(
     options: &EvalOptions,
     progress: &dyn Fn(&str),
 ) -> Result<SampleEval, RunError> {
+    let rig = &*sample.rig_for(rig).map_err(Box::new)?;
     let nets =
         Arc::new(
             GenerativeNets::load(&options.networks).map_err(|source| RunError::Init {

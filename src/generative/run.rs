@@ -135,6 +135,8 @@ pub enum RunError {
     },
     #[error("loading the rig: {0}")]
     Rig(#[from] crate::rig::RigError),
+    #[error(transparent)]
+    Sample(#[from] Box<crate::sample::SampleError>),
 }
 
 fn io_error(path: &Path) -> impl Fn(std::io::Error) -> RunError + '_ {

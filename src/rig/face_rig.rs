@@ -271,6 +271,19 @@ impl FaceRig {
         &self.identity_names
     }
 
+    /// Adds a neutral mesh on the rig's topology as the next identity, called `name`, and
+    /// returns its index: the rig's expression deltas then pose it as they pose the rig's own
+    /// identities (`x = b + Σ w·(s − n)`). The mesh must have the neutral's vertex count and
+    /// faces and finite coordinates.
+    pub fn add_identity(&mut self, name: &str, path: &Path) -> Result<usize, RigError> {
+        let mesh = ObjMesh::read(path)?;
+        check_same_topology(path, &self.mesh, &mesh)?;
+        check_finite(path, &mesh.positions)?;
+        self.identity_names.push(name.to_string());
+        self.identities.push(mesh.positions);
+        Ok(self.identities.len() - 1)
+    }
+
     /// Rest positions of identity `i`, or the generic neutral for `None` (cm).
     ///
     /// # Panics
@@ -494,6 +507,35 @@ mod tests {
             1 + rig.shape_names().len() + rig.identity_count(),
             rig.load_time().as_secs_f64()
         );
+    }
+
+    /// A neutral on the rig's topology becomes the next identity and is posed by the rig's
+    /// deltas like the rig's own; a mesh of another topology is refused, naming the file.
+    #[test]
+    fn an_added_identity_is_posed_like_the_rigs_own() {
+        let mut added = rig().clone();
+        let path = rig_dir().join("identity007.obj");
+        let i = added.add_identity("scan", &path).unwrap();
+        assert_eq!(i, 10);
+        assert_eq!(added.identity_names()[10], "scan");
+        let code = ExpressionCode::single("jawOpen", 0.7).unwrap();
+        assert_eq!(added.pose(Some(10), &code), rig().pose(Some(7), &code));
+
+        let dir = temp_dir("add-identity");
+        let other = ObjMesh {
+            positions: rig().neutral()[..100].to_vec(),
+            faces: Polygons::from_lists(&[[0u32, 1, 2]]),
+            ..ObjMesh::default()
+        };
+        let bad = dir.join("bad.obj");
+        other.write(&bad, "").unwrap();
+        let err = added.add_identity("bad", &bad).unwrap_err();
+        assert!(
+            matches!(err, RigError::VertexCount { found: 100, .. }),
+            "{err}"
+        );
+        assert!(err.to_string().contains("bad.obj"), "{err}");
+        assert_eq!(added.identity_count(), 11);
     }
 
     #[test]

@@ -110,6 +110,7 @@ fn main() -> Result<()> {
                 &args,
                 &cli.sample,
                 cli.quality,
+                cli.actuation,
                 Some(&facesim_ui::export_rrd::RrdFactory),
             )?;
             Ok(())

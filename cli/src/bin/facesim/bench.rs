@@ -400,6 +400,7 @@ pub fn bench_shapes(args: &ShapesArgs) -> Result<()> {
         .with_context(|| format!("loading the sample from {}", args.sample.display()))?;
     let rig = facesim::rig::FaceRig::load(&args.rig)
         .with_context(|| format!("loading the rig from {}", args.rig.display()))?;
+    let rig = sample.rig_for(&rig)?;
     if let Some(unknown) = args
         .faces
         .iter()

@@ -162,3 +162,119 @@ pub fn import(args: &ImportArgs) -> Result<()> {
     }
     Ok(())
 }
+
+#[derive(clap::Args)]
+pub struct AddFaceArgs {
+    /// The new face's neutral: an OBJ on the rig's topology (the vertices and faces of the
+    /// rig's generic_neutral_mesh.obj, in its order), in cm like the rig.
+    neutral: PathBuf,
+    /// The sample folder to add it to (it needs a template face).
+    #[arg(long)]
+    sample: PathBuf,
+    /// The face's name (letters, digits, '-', '_'); default: the OBJ's file stem.
+    #[arg(long)]
+    name: Option<String>,
+    /// The face's default style: intensity,asymmetry,jaw,dimple.
+    #[arg(long, value_delimiter = ',', num_args = 4, default_values_t = [0.0; 4])]
+    style: Vec<f64>,
+    #[arg(long, default_value_t = facesim::sample::SAMPLE_LOD)]
+    lod: facesim::model::Lod,
+    /// The rig whose expression shapes pose the new face.
+    #[arg(long, default_value = facesim::rig::DEFAULT_RIG_DIR)]
+    rig: PathBuf,
+    /// φ's training iterations (as `train-mapping`).
+    #[arg(long, default_value_t = facesim::mapping::TrainConfig::default().iterations)]
+    iterations: u64,
+    #[arg(long, default_value_t = facesim::mapping::TrainConfig::default().learning_rate)]
+    lr: f64,
+    #[arg(long, default_value_t = facesim::mapping::TrainConfig::default().seed)]
+    seed: u64,
+}
+
+/// `facesim add-face`: a new face from its neutral alone, imported, fitted, mapped and added
+/// to a sample.
+pub fn add_face(args: &AddFaceArgs) -> Result<()> {
+    use facesim::sample::{AddFaceEvent, AddFaceOptions};
+    let options = AddFaceOptions {
+        name: args.name.clone(),
+        style: facesim::rig::StyleCode(
+            args.style
+                .clone()
+                .try_into()
+                .map_err(|_| anyhow::anyhow!("--style takes 4 numbers"))?,
+        ),
+        lod: args.lod,
+        mapping: facesim::mapping::TrainConfig {
+            iterations: args.iterations,
+            learning_rate: args.lr,
+            seed: args.seed,
+            ..Default::default()
+        },
+    };
+    let rig = load_rig(&args.rig)?;
+    let bar = spinner();
+    let training = facesim_cli::progress::bar(
+        args.iterations,
+        "training φ [{bar:30}] {pos}/{len} {elapsed_precise} eta {eta} {msg}",
+    );
+    let added =
+        facesim::sample::add_face(&rig, &args.sample, &args.neutral, &options, &mut |event| {
+            match event {
+                AddFaceEvent::Step(message) => bar.set_message(message.to_string()),
+                AddFaceEvent::Mapping(row) => {
+                    bar.finish_and_clear();
+                    training.set_position(row.iteration + 1);
+                    training.set_message(format!("vertex MSE {:.4} mm²", row.vertex_mse_mm2));
+                }
+            }
+        })
+        .with_context(|| {
+            format!(
+                "adding {} to the sample in {}",
+                args.neutral.display(),
+                args.sample.display()
+            )
+        })?;
+    bar.finish_and_clear();
+    training.finish_and_clear();
+    let table = Table::new(
+        &[
+            "face",
+            "rig identity",
+            "elements",
+            "basis skin error (RMS / max, mm)",
+            "φ vertex RMS (mm)",
+            "seconds",
+        ],
+        "lrrlrr",
+    );
+    let basis = &added.basis.fits;
+    let record = added.mapping.record.as_ref();
+    print!("{}", table.head());
+    print!(
+        "{}",
+        table.line([
+            added.entry.name.clone(),
+            added.entry.identity.map_or("-".into(), |i| i.to_string()),
+            added.model.mesh.element_count().to_string(),
+            format!(
+                "≤ {:.3} / {:.3}",
+                10.0 * basis.iter().map(|f| f.skin_rms).fold(0.0, f64::max),
+                10.0 * basis.iter().map(|f| f.skin_max).fold(0.0, f64::max)
+            ),
+            record.map_or("-".into(), |r| format!(
+                "{:.3}",
+                r.final_vertex_mse_mm2.sqrt()
+            )),
+            format!("{:.0}", added.seconds),
+        ])
+    );
+    eprintln!(
+        "added {} to {}; open it with `cargo run --release -- --sample {}` \
+         (`--actuation networks` drives it with the sample's networks)",
+        added.entry.name,
+        args.sample.display(),
+        args.sample.display()
+    );
+    Ok(())
+}

@@ -29,6 +29,10 @@ enum Command {
     /// Build the bundled sample (template + a few identities, coarse, with fitted actuation
     /// bases); then train its mappings with `train-mapping --faces OUT`.
     Sample(import::SampleArgs),
+    /// Add a new face to a sample from its neutral alone (an OBJ on the rig's topology):
+    /// imported, its actuation basis fitted, its φ trained to the template, listed in the
+    /// manifest; the editor, eval, export and serve then drive it.
+    AddFace(import::AddFaceArgs),
     /// Train the mapping networks φ (identity → canonical face) of the faces in a folder.
     TrainMapping(mapping::TrainArgs),
     /// Mapping-function statistics (Fig. 3 heatmaps, CSVs, per-vertex values) and, with
@@ -46,6 +50,9 @@ enum Command {
         /// track's, else interactive).
         #[arg(long)]
         quality: Option<facesim::sim::Quality>,
+        /// What drives the face: its fitted basis, or the sample's networks through its φ.
+        #[arg(long, value_enum, default_value_t)]
+        actuation: facesim_cli::actuation::Actuation,
     },
     /// Train the expression/style networks (`--stage 1`: fit the per-pose actuations and jaw
     /// motions fitted to the rig's targets; `--stage 2`: fine-tune them through the simulator
@@ -67,6 +74,7 @@ fn main() -> Result<()> {
     match Cli::parse().command {
         Command::Import(args) => import::import(&args),
         Command::Sample(args) => import::sample(&args),
+        Command::AddFace(args) => import::add_face(&args),
         Command::TrainMapping(args) => mapping::train_mapping(&args),
         Command::Stats(args) => mapping::stats(&args),
         Command::Train(args) => generative::train(&args),
@@ -75,7 +83,8 @@ fn main() -> Result<()> {
             args,
             sample,
             quality,
-        } => facesim_cli::export::run(&args, &sample, quality, None).map(drop),
+            actuation,
+        } => facesim_cli::export::run(&args, &sample, quality, actuation, None).map(drop),
         Command::Bench { target } => bench::run(target),
     }
 }

@@ -3,8 +3,10 @@
 //!
 //! A sample folder holds `sample.json` (the manifest: which faces, their default styles and
 //! files), per face a model (`.face`), its actuation basis (`.basis`) and, once trained, its
-//! mapping into the canonical face (`.mapping`), and the rig's MIT notice.
+//! mapping into the canonical face (`.mapping`), and the rig's MIT notice. Faces added from
+//! a neutral mesh alone (`facesim add-face`, [`add_face`]) keep that neutral beside them.
 
+use std::borrow::Cow;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -20,6 +22,9 @@ use crate::model::{BuildError, FaceModel, Lod, build_face};
 use crate::rig::style::identity_style;
 use crate::rig::{FaceRig, StyleCode};
 use crate::session::heatmap::{FieldSource, Legend, PerFaceField, builtin_sources};
+
+pub mod add_face;
+pub use add_face::{AddFaceEvent, AddFaceOptions, add_face};
 
 /// Where the bundled sample lives, relative to the repository root.
 pub const SAMPLE_DIR: &str = "sample_models/ict";
@@ -52,6 +57,11 @@ pub struct ManifestFace {
     pub face: String,
     pub basis: String,
     pub mapping: String,
+    /// For a face added from its neutral alone (`facesim add-face`): that neutral, an OBJ on
+    /// the rig's topology in the sample folder. Tools that need the rig's targets add it to
+    /// the rig as identity `identity` ([`Sample::rig_for`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub neutral: Option<String>,
 }
 
 /// One face of a loaded sample.
@@ -63,6 +73,8 @@ pub struct SampleFace {
     pub actuation: Arc<dyn ActuationModel>,
     /// φ into the canonical face; `None` for the template itself or before training.
     pub mapping: Option<Mapping>,
+    /// The neutral of a face added with `facesim add-face` (see [`ManifestFace::neutral`]).
+    pub neutral: Option<PathBuf>,
 }
 
 /// A loaded sample: the template face first, then the identities.
@@ -104,6 +116,27 @@ pub enum SampleError {
     },
     #[error("fitting the actuation basis of {name}: {source}")]
     Basis { name: String, source: BasisError },
+    #[error(
+        "{source}; a face is added from a neutral on the rig's topology: the vertices and \
+         faces of the rig's neutral ({}), in its order",
+        crate::rig::face_rig::NEUTRAL_FILE
+    )]
+    Neutral { source: crate::rig::RigError },
+    #[error(
+        "the sample's face {name} was added as the rig's identity {identity}, but this rig \
+         has {rig} identities before it: use the rig the sample was built with"
+    )]
+    AddedIdentity {
+        name: String,
+        identity: usize,
+        rig: usize,
+    },
+    #[error("the sample already has a face called {0}; choose another name")]
+    NameTaken(String),
+    #[error("'{0}' cannot name a face: use letters, digits, '-' and '_'")]
+    BadName(String),
+    #[error("{0} has no template face (identity null) to map a new face into")]
+    NoTemplate(PathBuf),
 }
 
 impl Sample {
@@ -149,6 +182,7 @@ impl Sample {
                 model,
                 actuation: Arc::new(basis),
                 mapping,
+                neutral: entry.neutral.map(|n| dir.join(n)),
             });
         }
         Ok(Self { dir, faces })
@@ -233,6 +267,25 @@ impl Sample {
         Ok(sources)
     }
 
+    /// The rig as this sample's faces need it for the rig's targets (`model::target`): `rig`
+    /// itself, or a copy with the neutrals of the faces added with `facesim add-face` as the
+    /// identities their models were built as.
+    pub fn rig_for<'a>(&self, rig: &'a FaceRig) -> Result<Cow<'a, FaceRig>, SampleError> {
+        let added: Vec<_> = self
+            .faces
+            .iter()
+            .filter_map(|f| Some((f.name.as_str(), f.identity?, f.neutral.as_deref()?)))
+            .collect();
+        if added.is_empty() {
+            return Ok(Cow::Borrowed(rig));
+        }
+        let mut extended = rig.clone();
+        for (name, identity, path) in added {
+            add_neutral(&mut extended, name, identity, path)?;
+        }
+        Ok(Cow::Owned(extended))
+    }
+
     /// The face named `name`.
     pub fn face(&self, name: &str) -> Option<&SampleFace> {
         self.faces.iter().find(|f| f.name == name)
@@ -258,6 +311,40 @@ pub fn read_manifest(dir: &Path) -> Result<Manifest, SampleError> {
         });
     }
     Ok(manifest)
+}
+
+/// Adds the added face `name`'s neutral at `path` to `rig` as identity `identity`, unless
+/// the rig holds it already.
+fn add_neutral(
+    rig: &mut FaceRig,
+    name: &str,
+    identity: usize,
+    path: &Path,
+) -> Result<(), SampleError> {
+    let count = rig.identity_count();
+    if identity < count && rig.identity_names()[identity] == name {
+        return Ok(());
+    }
+    if identity != count {
+        return Err(SampleError::AddedIdentity {
+            name: name.to_string(),
+            identity,
+            rig: count,
+        });
+    }
+    rig.add_identity(name, path)
+        .map(drop)
+        .map_err(|source| SampleError::Neutral { source })
+}
+
+/// Writes `manifest` as `dir/sample.json`, atomically (a reader sees the old or the new).
+fn write_manifest(dir: &Path, manifest: &Manifest) -> Result<(), SampleError> {
+    let path = dir.join(MANIFEST);
+    let partial = dir.join(format!(".{MANIFEST}.partial"));
+    let json = serde_json::to_string_pretty(manifest).expect("the manifest serializes");
+    std::fs::write(&partial, json + "\n")
+        .and_then(|()| std::fs::rename(&partial, &path))
+        .map_err(|source| SampleError::Io { path, source })
 }
 
 /// What building one face of a sample produced.
@@ -300,6 +387,7 @@ pub fn build_faces(
                 face: format!("{stem}.face"),
                 basis: format!("{stem}.basis"),
                 mapping: format!("{stem}.mapping"),
+                neutral: None,
             },
             model,
             basis,
@@ -353,9 +441,7 @@ pub fn write_sample(
         ),
         faces: faces.into_iter().map(|f| f.entry).collect(),
     };
-    let path = out.join(MANIFEST);
-    let json = serde_json::to_string_pretty(&manifest).expect("the manifest serializes");
-    std::fs::write(&path, json + "\n").map_err(io(&path))?;
+    write_manifest(out, &manifest)?;
     Ok(manifest)
 }
 
