@@ -184,11 +184,22 @@ fn add_face_refuses_a_mesh_off_the_rigs_topology() {
         dir.as_os_str(),
         arg("--rig"),
         arg(&rig),
+        arg("--style"),
+        arg("-0.5,0.2,0,0.6"),
     ]));
     assert!(
         message.contains("scan.obj: has 3 vertices") && message.contains("rig's topology"),
         "{message}"
     );
+    let style = stderr_of_failure(facesim().args([
+        arg("add-face"),
+        scan.as_os_str(),
+        arg("--sample"),
+        dir.as_os_str(),
+        arg("--style"),
+        arg("0.5,0.2"),
+    ]));
+    assert!(style.contains("--style takes 4 numbers"), "{style}");
     let manifest = std::fs::read_to_string(dir.join("sample.json")).unwrap();
     assert_eq!(
         manifest,

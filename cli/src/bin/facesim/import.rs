@@ -174,8 +174,8 @@ pub struct AddFaceArgs {
     /// The face's name (letters, digits, '-', '_'); default: the OBJ's file stem.
     #[arg(long)]
     name: Option<String>,
-    /// The face's default style: intensity,asymmetry,jaw,dimple.
-    #[arg(long, value_delimiter = ',', num_args = 4, default_values_t = [0.0; 4])]
+    /// The face's default style: intensity,asymmetry,jaw,dimple (e.g. `-0.5,0.2,0,0.6`).
+    #[arg(long, value_delimiter = ',', allow_hyphen_values = true, default_values_t = [0.0; 4])]
     style: Vec<f64>,
     #[arg(long, default_value_t = facesim::sample::SAMPLE_LOD)]
     lod: facesim::model::Lod,
