@@ -104,6 +104,7 @@ pub fn run(
         fps: args.fps,
         quality,
         contact,
+        actuation: actuation.to_string(),
         range: args.frames.map(|(first, end)| FrameRange {
             first,
             end,

@@ -145,6 +145,9 @@ fn export_drives_the_face_with_the_chosen_actuation() {
         let err = String::from_utf8_lossy(&status.stderr).into_owned();
         assert!(status.status.success(), "{err}");
         assert!(err.contains(&format!("actuation {actuation}")), "{err}");
+        let report = std::fs::read_to_string(out.join("smile.report.json")).unwrap();
+        let report: serde_json::Value = serde_json::from_str(&report).unwrap();
+        assert_eq!(report["actuation"], actuation);
         facesim::export::pc2::read(&out.join("smile.pc2"))
             .unwrap()
             .1

@@ -48,6 +48,10 @@ pub struct ExportReport {
     pub fps: f64,
     pub quality: Quality,
     pub contact: bool,
+    /// What drove the face: its fitted `basis`, or the sample's `networks` through its φ
+    /// (empty in reports written before it was recorded).
+    #[serde(default)]
+    pub actuation: String,
     /// Frames that did not reach the preset's tolerance.
     pub unconverged: usize,
     /// Frames with at least one crossing.
@@ -62,7 +66,14 @@ pub struct ReportBuilder {
 }
 
 impl ReportBuilder {
-    pub fn new(model: &FaceModel, track: &str, fps: f64, quality: Quality, contact: bool) -> Self {
+    pub fn new(
+        model: &FaceModel,
+        track: &str,
+        fps: f64,
+        quality: Quality,
+        contact: bool,
+        actuation: &str,
+    ) -> Self {
         ReportBuilder {
             audit: CrossingAudit::new(model),
             report: ExportReport {
@@ -73,6 +84,7 @@ impl ReportBuilder {
                 fps,
                 quality,
                 contact,
+                actuation: actuation.into(),
                 unconverged: 0,
                 crossing_frames: 0,
                 frames: Vec::new(),

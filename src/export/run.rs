@@ -25,6 +25,8 @@ pub struct ExportJob {
     pub quality: Quality,
     /// Lip and teeth contact in every solve.
     pub contact: bool,
+    /// What drove the face (`basis`, `networks`, …), as the report records it.
+    pub actuation: String,
     /// The frames to write (`None`: all of the track's).
     pub range: Option<FrameRange>,
 }
@@ -151,7 +153,14 @@ pub fn export(
     std::fs::create_dir_all(&job.out_dir).map_err(|e| ExportError::io(&job.out_dir, e))?;
     let mut staging = Staging::default();
     let report_path = job.out_dir.join(format!("{}.report.json", job.name));
-    let mut report = ReportBuilder::new(&face.model, &job.name, job.fps, job.quality, job.contact);
+    let mut report = ReportBuilder::new(
+        &face.model,
+        &job.name,
+        job.fps,
+        job.quality,
+        job.contact,
+        &job.actuation,
+    );
     let result = (|| {
         let sinks = open_sinks(
             &mut staging,

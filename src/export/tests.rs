@@ -40,6 +40,7 @@ fn core_job(name: &str, dir: &Path) -> ExportJob {
         fps: 10.0,
         quality: Quality::Interactive,
         contact: false,
+        actuation: "basis".into(),
         range: None,
     }
 }
@@ -190,6 +191,7 @@ fn a_short_track_exports_to_every_format_consistently() {
             .unwrap();
     assert_eq!((report.frames.len(), report.contact), (4, false));
     assert_eq!(report.quality, Quality::Interactive);
+    assert_eq!(report.actuation, "basis");
     assert_eq!((report.unconverged, summary.unconverged), (0, 0));
     assert_eq!(report.crossing_frames, summary.crossing_frames);
     assert!(report.frames.iter().all(|f| f.converged), "{report:?}");
@@ -304,7 +306,8 @@ fn the_report_marks_unconverged_and_crossing_frames() {
     let frame = session
         .wait_generation(generation, std::time::Duration::from_secs(60))
         .unwrap();
-    let mut builder = report::ReportBuilder::new(&model, "t", 30.0, Quality::Interactive, false);
+    let mut builder =
+        report::ReportBuilder::new(&model, "t", 30.0, Quality::Interactive, false, "basis");
     builder.record(&model, 0, 0.0, &frame);
     let mut stopped = (*frame).clone();
     stopped.stats.converged = false;
