@@ -8,10 +8,13 @@ use std::cell::RefCell;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use super::{Manifest, ManifestFace, SampleError, add_neutral, read_manifest, write_manifest};
+use super::{
+    BuiltFace, Manifest, ManifestFace, SampleError, build_one, read_manifest, with_added_neutrals,
+    write_manifest,
+};
 use crate::drive::basis::ActuationBasis;
 use crate::mapping::{LossRow, Mapping, TrainConfig, loss_csv};
-use crate::model::{FaceModel, Lod, build_face};
+use crate::model::{FaceModel, Lod};
 use crate::rig::{FaceRig, StyleCode};
 
 /// How [`add_face`] builds the face.
@@ -56,10 +59,11 @@ pub struct AddedFace {
 }
 
 /// Adds the neutral mesh at `neutral` to the sample in `dir` as a new face: imports it as the
-/// rig's next identity (repair, tissue, bindings, at `options.lod`), fits its actuation basis,
-/// trains its φ into the sample's template face, writes its files beside the others (the
-/// neutral itself as `<name>-neutral.obj`, so that tools reach its targets) and adds it to the
-/// manifest last, so an interrupted run leaves the sample as it was.
+/// rig's next identity (repair, tissue, bindings, at `options.lod`) and fits its actuation basis
+/// as `build_faces` builds the sample's faces, trains its φ into the sample's template face,
+/// writes its files beside the others (the neutral itself as `<name>-neutral.obj`, so that
+/// tools reach its targets) and adds it to the manifest last, so an interrupted run leaves the
+/// sample as it was.
 ///
 /// Fails with a clear error when the mesh is not on the rig's topology, the name is taken or
 /// unusable, or the sample has no template face.
@@ -85,39 +89,35 @@ pub fn add_face(
     })?;
 
     // The rig with the sample's earlier added faces, then this one as the next identity.
-    let mut rig = rig.clone();
-    for f in &manifest.faces {
-        if let (Some(identity), Some(file)) = (f.identity, &f.neutral) {
-            add_neutral(&mut rig, &f.name, identity, &dir.join(file))?;
-        }
-    }
+    let mut rig = with_added_neutrals(
+        rig,
+        manifest
+            .faces
+            .iter()
+            .filter_map(|f| Some((f.name.as_str(), f.identity?, dir.join(f.neutral.as_ref()?)))),
+    )?
+    .into_owned();
     let identity = rig
         .add_identity(&name, neutral)
         .map_err(|source| SampleError::Neutral { source })?;
 
-    events(AddFaceEvent::Step(&format!(
-        "importing {name} at {} detail",
-        options.lod.name()
-    )));
-    let model = build_face(&rig, Some(identity), &options.lod.settings()).map_err(|source| {
-        SampleError::Build {
-            name: name.clone(),
-            source: Box::new(source),
-        }
-    })?;
-    let basis = {
-        // `fit` reports through a shared closure on this thread.
+    let BuiltFace {
+        mut entry,
+        model,
+        basis,
+    } = {
+        // The build reports through a shared closure on this thread.
         let events = RefCell::new(&mut *events);
-        ActuationBasis::fit(&rig, &model, &|done, total, shape| {
-            (events.borrow_mut())(AddFaceEvent::Step(&format!(
-                "fitting {name}'s basis: {done}/{total} {shape}"
-            )))
-        })
-    }
-    .map_err(|source| SampleError::Basis {
-        name: name.clone(),
-        source,
-    })?;
+        build_one(
+            &rig,
+            Some(identity),
+            name.clone(),
+            options.style,
+            options.lod,
+            &|message| (events.borrow_mut())(AddFaceEvent::Step(message)),
+        )?
+    };
+    entry.neutral = Some(format!("{name}-neutral.obj"));
     events(AddFaceEvent::Step(&format!("training φ of {name}")));
     let (mapping, rows) = crate::mapping::train(&model, &canonical, &options.mapping, |row| {
         events(AddFaceEvent::Mapping(row))
@@ -128,16 +128,6 @@ pub fn add_face(
     })?;
 
     events(AddFaceEvent::Step(&format!("writing {name}")));
-    let stem = format!("{name}-{}", options.lod.name());
-    let entry = ManifestFace {
-        name: name.clone(),
-        identity: Some(identity),
-        style: options.style,
-        face: format!("{stem}.face"),
-        basis: format!("{stem}.basis"),
-        mapping: format!("{stem}.mapping"),
-        neutral: Some(format!("{name}-neutral.obj")),
-    };
     write_files(dir, neutral, &entry, &model, &basis, &mapping, &rows)?;
     manifest.faces.push(entry.clone());
     write_manifest(dir, &manifest)?;

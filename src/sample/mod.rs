@@ -271,19 +271,12 @@ impl Sample {
     /// itself, or a copy with the neutrals of the faces added with `facesim add-face` as the
     /// identities their models were built as.
     pub fn rig_for<'a>(&self, rig: &'a FaceRig) -> Result<Cow<'a, FaceRig>, SampleError> {
-        let added: Vec<_> = self
-            .faces
-            .iter()
-            .filter_map(|f| Some((f.name.as_str(), f.identity?, f.neutral.as_deref()?)))
-            .collect();
-        if added.is_empty() {
-            return Ok(Cow::Borrowed(rig));
-        }
-        let mut extended = rig.clone();
-        for (name, identity, path) in added {
-            add_neutral(&mut extended, name, identity, path)?;
-        }
-        Ok(Cow::Owned(extended))
+        with_added_neutrals(
+            rig,
+            self.faces
+                .iter()
+                .filter_map(|f| Some((f.name.as_str(), f.identity?, f.neutral.clone()?))),
+        )
     }
 
     /// The face named `name`.
@@ -311,6 +304,19 @@ pub fn read_manifest(dir: &Path) -> Result<Manifest, SampleError> {
         });
     }
     Ok(manifest)
+}
+
+/// `rig` with the neutrals of added faces, `(name, identity, neutral's path)`, as the
+/// identities their models were built as; `rig` itself when there are none.
+fn with_added_neutrals<'a, 'n>(
+    rig: &'a FaceRig,
+    added: impl IntoIterator<Item = (&'n str, usize, PathBuf)>,
+) -> Result<Cow<'a, FaceRig>, SampleError> {
+    let mut out = Cow::Borrowed(rig);
+    for (name, identity, path) in added {
+        add_neutral(out.to_mut(), name, identity, &path)?;
+    }
+    Ok(out)
 }
 
 /// Adds the added face `name`'s neutral at `path` to `rig` as identity `identity`, unless
@@ -362,38 +368,53 @@ pub fn build_faces(
     lod: Lod,
     progress: &dyn Fn(&str),
 ) -> Result<Vec<BuiltFace>, SampleError> {
-    let mut out = Vec::new();
-    for identity in std::iter::once(None).chain(identities.iter().map(|&i| Some(i))) {
-        let name = identity.map_or("neutral".to_string(), |i| format!("identity{i:03}"));
-        progress(&format!("building {name}"));
-        let model =
-            build_face(rig, identity, &lod.settings()).map_err(|source| SampleError::Build {
-                name: name.clone(),
-                source: Box::new(source),
-            })?;
-        let basis = ActuationBasis::fit(rig, &model, &|done, total, shape| {
-            progress(&format!("fitting {name}: {done}/{total} {shape}"))
+    std::iter::once(None)
+        .chain(identities.iter().map(|&i| Some(i)))
+        .map(|identity| {
+            let name = identity.map_or("neutral".to_string(), |i| format!("identity{i:03}"));
+            build_one(rig, identity, name, identity_style(identity), lod, progress)
         })
-        .map_err(|source| SampleError::Basis {
+        .collect()
+}
+
+/// Builds (in memory) the face `name` of the rig's identity `identity` (`None`: the template)
+/// at `lod`: its model, its fitted actuation basis and its manifest entry (files named
+/// `<name>-<lod>.face`, `.basis`, `.mapping`).
+fn build_one(
+    rig: &FaceRig,
+    identity: Option<usize>,
+    name: String,
+    style: StyleCode,
+    lod: Lod,
+    progress: &dyn Fn(&str),
+) -> Result<BuiltFace, SampleError> {
+    progress(&format!("building {name} at {} detail", lod.name()));
+    let model =
+        build_face(rig, identity, &lod.settings()).map_err(|source| SampleError::Build {
             name: name.clone(),
-            source,
+            source: Box::new(source),
         })?;
-        let stem = format!("{name}-{}", lod.name());
-        out.push(BuiltFace {
-            entry: ManifestFace {
-                name,
-                identity,
-                style: identity_style(identity),
-                face: format!("{stem}.face"),
-                basis: format!("{stem}.basis"),
-                mapping: format!("{stem}.mapping"),
-                neutral: None,
-            },
-            model,
-            basis,
-        });
-    }
-    Ok(out)
+    let basis = ActuationBasis::fit(rig, &model, &|done, total, shape| {
+        progress(&format!("fitting {name}'s basis: {done}/{total} {shape}"))
+    })
+    .map_err(|source| SampleError::Basis {
+        name: name.clone(),
+        source,
+    })?;
+    let stem = format!("{name}-{}", lod.name());
+    Ok(BuiltFace {
+        entry: ManifestFace {
+            face: format!("{stem}.face"),
+            basis: format!("{stem}.basis"),
+            mapping: format!("{stem}.mapping"),
+            name,
+            identity,
+            style,
+            neutral: None,
+        },
+        model,
+        basis,
+    })
 }
 
 /// Builds a sample into `out`: faces, bases, manifest and the rig's licence notice.

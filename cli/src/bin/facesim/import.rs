@@ -182,13 +182,9 @@ pub struct AddFaceArgs {
     /// The rig whose expression shapes pose the new face.
     #[arg(long, default_value = facesim::rig::DEFAULT_RIG_DIR)]
     rig: PathBuf,
-    /// φ's training iterations (as `train-mapping`).
-    #[arg(long, default_value_t = facesim::mapping::TrainConfig::default().iterations)]
-    iterations: u64,
-    #[arg(long, default_value_t = facesim::mapping::TrainConfig::default().learning_rate)]
-    lr: f64,
-    #[arg(long, default_value_t = facesim::mapping::TrainConfig::default().seed)]
-    seed: u64,
+    /// φ's training, as `train-mapping` trains it.
+    #[command(flatten)]
+    training: crate::mapping::TrainingArgs,
 }
 
 /// `facesim add-face`: a new face from its neutral alone, imported, fitted, mapped and added
@@ -204,17 +200,12 @@ pub fn add_face(args: &AddFaceArgs) -> Result<()> {
                 .map_err(|_| anyhow::anyhow!("--style takes 4 numbers"))?,
         ),
         lod: args.lod,
-        mapping: facesim::mapping::TrainConfig {
-            iterations: args.iterations,
-            learning_rate: args.lr,
-            seed: args.seed,
-            ..Default::default()
-        },
+        mapping: args.training.config(),
     };
     let rig = load_rig(&args.rig)?;
     let bar = spinner();
     let training = facesim_cli::progress::bar(
-        args.iterations,
+        options.mapping.iterations,
         "training φ [{bar:30}] {pos}/{len} {elapsed_precise} eta {eta} {msg}",
     );
     let added =

@@ -19,6 +19,13 @@ pub struct TrainArgs {
     /// Faces to train (file stems); default: every other `.face` in the folder.
     #[arg(long, value_delimiter = ',')]
     identities: Vec<String>,
+    #[command(flatten)]
+    training: TrainingArgs,
+}
+
+/// φ's training settings, as `train-mapping` and `add-face` take them.
+#[derive(clap::Args)]
+pub struct TrainingArgs {
     #[arg(long, default_value_t = TrainConfig::default().iterations)]
     iterations: u64,
     /// Peak learning rate (constant for the first half, then linear decay to 0).
@@ -38,6 +45,22 @@ pub struct TrainArgs {
     /// λ_e.
     #[arg(long, default_value_t = TrainConfig::default().lambda_elastic)]
     lambda_elastic: f64,
+}
+
+impl TrainingArgs {
+    pub fn config(&self) -> TrainConfig {
+        let mut config = TrainConfig {
+            iterations: self.iterations,
+            learning_rate: self.lr,
+            seed: self.seed,
+            surface_batch: self.surface_batch,
+            elastic_batch: self.elastic_batch,
+            lambda_elastic: self.lambda_elastic,
+            ..TrainConfig::default()
+        };
+        config.architecture.width = self.width;
+        config
+    }
 }
 
 #[derive(clap::Args)]
@@ -68,16 +91,7 @@ pub struct StatsArgs {
 }
 
 pub fn train_mapping(a: &TrainArgs) -> Result<()> {
-    let mut config = TrainConfig {
-        iterations: a.iterations,
-        learning_rate: a.lr,
-        seed: a.seed,
-        surface_batch: a.surface_batch,
-        elastic_batch: a.elastic_batch,
-        lambda_elastic: a.lambda_elastic,
-        ..TrainConfig::default()
-    };
-    config.architecture.width = a.width;
+    let config = a.training.config();
     let table = folder::trained_table();
     print!("{}", table.head());
     let bar = progress::bar(
