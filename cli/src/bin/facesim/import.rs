@@ -49,9 +49,9 @@ pub fn sample(args: &SampleArgs) -> Result<()> {
         &[
             "face",
             "elements",
-            "basis skin error (RMS / max, mm)",
-            "jaw fit RMS (mm)",
-            "clamped elements",
+            BASIS_COLUMNS[0],
+            BASIS_COLUMNS[1],
+            BASIS_COLUMNS[2],
         ],
         "lrlrr",
     );
@@ -59,18 +59,15 @@ pub fn sample(args: &SampleArgs) -> Result<()> {
     for entry in &manifest.faces {
         let model = facesim::model::FaceModel::load(&out.join(&entry.face))?;
         let basis = facesim::drive::basis::ActuationBasis::load(&out.join(&entry.basis))?;
-        let rms = basis.fits.iter().map(|f| f.skin_rms).fold(0.0, f64::max);
-        let max = basis.fits.iter().map(|f| f.skin_max).fold(0.0, f64::max);
-        let jaw = basis.fits.iter().map(|f| f.jaw_rms).fold(0.0, f64::max);
-        let clamped: usize = basis.fits.iter().map(|f| f.clamped).sum();
+        let [skin, jaw, clamped] = basis_cells(&basis);
         print!(
             "{}",
             table.line([
                 entry.name.clone(),
                 model.mesh.element_count().to_string(),
-                format!("≤ {:.3} / {:.3}", 10.0 * rms, 10.0 * max),
-                format!("≤ {:.3}", 10.0 * jaw),
-                clamped.to_string(),
+                skin,
+                jaw,
+                clamped,
             ])
         );
     }
@@ -163,6 +160,30 @@ pub fn import(args: &ImportArgs) -> Result<()> {
     Ok(())
 }
 
+/// The columns of [`basis_cells`].
+const BASIS_COLUMNS: [&str; 3] = [
+    "basis skin error (RMS / max, mm)",
+    "jaw fit RMS (mm)",
+    "clamped elements",
+];
+
+/// A fitted basis's worst shape: skin RMS / max and jaw RMS (mm), and its clamped elements.
+fn basis_cells(basis: &facesim::drive::basis::ActuationBasis) -> [String; 3] {
+    let worst = |of: fn(&facesim::drive::basis::ShapeFit) -> f64| {
+        basis.fits.iter().map(of).fold(0.0, f64::max)
+    };
+    let clamped: usize = basis.fits.iter().map(|f| f.clamped).sum();
+    [
+        format!(
+            "≤ {:.3} / {:.3}",
+            10.0 * worst(|f| f.skin_rms),
+            10.0 * worst(|f| f.skin_max)
+        ),
+        format!("≤ {:.3}", 10.0 * worst(|f| f.jaw_rms)),
+        clamped.to_string(),
+    ]
+}
+
 #[derive(clap::Args)]
 pub struct AddFaceArgs {
     /// The new face's neutral: an OBJ on the rig's topology (the vertices and faces of the
@@ -233,13 +254,15 @@ pub fn add_face(args: &AddFaceArgs) -> Result<()> {
             "face",
             "rig identity",
             "elements",
-            "basis skin error (RMS / max, mm)",
+            BASIS_COLUMNS[0],
+            BASIS_COLUMNS[1],
+            BASIS_COLUMNS[2],
             "φ vertex RMS (mm)",
             "seconds",
         ],
-        "lrrlrr",
+        "lrrlrrrr",
     );
-    let basis = &added.basis.fits;
+    let [skin, jaw, clamped] = basis_cells(&added.basis);
     let record = added.mapping.record.as_ref();
     print!("{}", table.head());
     print!(
@@ -248,11 +271,9 @@ pub fn add_face(args: &AddFaceArgs) -> Result<()> {
             added.entry.name.clone(),
             added.entry.identity.map_or("-".into(), |i| i.to_string()),
             added.model.mesh.element_count().to_string(),
-            format!(
-                "≤ {:.3} / {:.3}",
-                10.0 * basis.iter().map(|f| f.skin_rms).fold(0.0, f64::max),
-                10.0 * basis.iter().map(|f| f.skin_max).fold(0.0, f64::max)
-            ),
+            skin,
+            jaw,
+            clamped,
             record.map_or("-".into(), |r| format!(
                 "{:.3}",
                 r.final_vertex_mse_mm2.sqrt()
