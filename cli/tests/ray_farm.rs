@@ -118,3 +118,76 @@ fn shots_export_as_ray_tasks_and_a_rerun_continues_where_it_stopped() {
     assert_eq!(whole.samples, 3);
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// The contact sweep as Ray shards (`tools/ray/contact_sweep.py`): two shards of two codes
+/// each, merged; each shard is the sweep that seed gives when run alone (same outcomes), a
+/// rerun skips the shards that are done, and bad arguments are refused.
+#[test]
+fn the_contact_sweep_runs_as_ray_shards_and_merges_them() {
+    let check = Command::new(python()).args(["-c", "import ray"]).output();
+    assert!(
+        check.is_ok_and(|o| o.status.success()),
+        "the farm test needs Ray for Python: pip install ray==2.60.0"
+    );
+    let dir = std::env::temp_dir().join(format!("facesim-ray-sweep-{}", std::process::id()));
+    let sweep = |extra: &[&str]| {
+        let run = Command::new(python())
+            .arg(root().join("tools/ray/contact_sweep.py"))
+            .arg("--out")
+            .arg(&dir)
+            // Weights up to 0.3: contact frames over the full range cost seconds each.
+            .args(["--shards", "2", "--codes", "2", "--first-seed", "7"])
+            .args(["--range", "0,0.3", "--root"])
+            .arg(root())
+            .arg("--facesim")
+            .arg(env!("CARGO_BIN_EXE_facesim"))
+            .args(extra)
+            .output()
+            .unwrap();
+        let report = std::fs::read_to_string(dir.join("sweep-report.json"))
+            .map(|t| serde_json::from_str::<serde_json::Value>(&t).unwrap())
+            .unwrap_or(serde_json::Value::Null);
+        (run, report)
+    };
+    let (run, report) = sweep(&[]);
+    assert!(run.status.success(), "{}", text(&run));
+    assert_eq!(
+        (report["done"].as_u64(), report["failed"].as_u64()),
+        (Some(2), Some(0))
+    );
+    let on = &report["contact"];
+    assert_eq!(on["frames"], 4, "{report}");
+    assert_eq!(on["intersecting"], 0, "{report}");
+    assert!(on["frame_ms"]["median"].as_f64().unwrap() > 0.0, "{report}");
+    assert!(report["no_contact"].is_null(), "contact mode only");
+
+    // Shard seed 8 is the sweep seed 8 gives alone.
+    let alone = dir.join("alone.json");
+    let direct = Command::new(env!("CARGO_BIN_EXE_facesim"))
+        .current_dir(root())
+        .args(["bench", "contact", "--sweep", "2", "--sweep-seed", "8"])
+        .args(["--sweep-range", "0,0.3", "--json"])
+        .arg(&alone)
+        .output()
+        .unwrap();
+    assert!(direct.status.success(), "{}", text(&direct));
+    let outcomes = |path: &Path| {
+        let r: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
+        r["outcomes"].clone()
+    };
+    assert_eq!(
+        outcomes(&dir.join("shard-contact-0_0.3-n2-seed8.json")),
+        outcomes(&alone)
+    );
+
+    // Run again: both shards are done and skipped; the merged counts are the same.
+    let (run, again) = sweep(&[]);
+    assert!(run.status.success(), "{}", text(&run));
+    assert_eq!(again["skipped"], 2, "{}", text(&run));
+    assert_eq!(again["contact"]["frames"], 4);
+    let (run, _) = sweep(&["--range", "1,0"]);
+    assert!(!run.status.success());
+    assert!(text(&run).contains("LOW <= HIGH"), "{}", text(&run));
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -67,6 +67,10 @@ pub struct SweepCounts {
     pub other_errors: Vec<String>,
     /// Median wall time per frame.
     pub median_frame: Duration,
+    /// Every frame's wall time (ms), in frame order: what a sweep split into shards merges
+    /// (`tools/ray/contact_sweep.py`).
+    #[serde(default)]
+    pub frame_ms: Vec<f64>,
     /// Longest frame.
     pub max_frame: Duration,
     /// Median and largest inverted-element count over the inverted frames.
@@ -199,6 +203,7 @@ impl Tally {
     }
 
     fn finish(mut self) -> SweepCounts {
+        self.counts.frame_ms = self.times.iter().map(|t| t.as_secs_f64() * 1e3).collect();
         self.times.sort_unstable();
         self.inverted_elements.sort_unstable();
         let c = &mut self.counts;
@@ -357,6 +362,9 @@ mod tests {
         let on = report.contact.as_ref().unwrap();
         let off = report.no_contact.as_ref().unwrap();
         assert_eq!((on.frames, off.frames), (4, 4));
+        assert_eq!((on.frame_ms.len(), off.frame_ms.len()), (4, 4));
+        let slowest = on.frame_ms.iter().copied().fold(0.0, f64::max);
+        assert_eq!(slowest, on.max_frame.as_secs_f64() * 1e3);
         assert_eq!(on.intersecting, 0, "{report:?}");
         assert!(on.other_errors.is_empty(), "{report:?}");
         assert!(on.ok >= 1, "{report:?}");
