@@ -27,6 +27,7 @@ mod math;
 pub mod mesh;
 pub mod planar;
 pub mod potential;
+pub mod refined;
 pub mod surface;
 #[cfg(test)]
 mod test_scenes;
@@ -45,6 +46,7 @@ pub use planar::{PlanarReport, planar_step_over};
 pub use potential::{
     BarrierPotential, HessianBlock, Projection, add_hessian_product, assemble_dense,
 };
+pub use refined::{RefinedReport, refined_step_over};
 pub use trust_region::TrustRegion;
 pub use verlet::VerletList;
 

@@ -20,9 +20,11 @@
 //!   motion since then can bring close; rebuilt once a vertex has moved far), filtered to
 //!   the pairs whose distance minus their relative motion is below d̂ — on the face a few
 //!   thousand of the ~10⁵ pairs whose boxes overlap. The step filter of
-//!   [`crate::contact::planar`] over them caps the step so that every pair stays on its side
-//!   of its division plane, with a tenth of its distance kept (motion along the plane, lips
-//!   sliding over each other, is free), and the barrier of every
+//!   [`crate::contact::refined`] over them caps the step so that every pair keeps a tenth of
+//!   its distance: each pair by the better of its division-plane bound (motion along the
+//!   plane, lips sliding over each other, is free) and, for the pairs that limit that,
+//!   additive CCD (a pair sliding around a curved lip leaves its plane early), and the
+//!   barrier of every
 //!   trial is evaluated over the same pairs (so no pair that comes within d̂ during the step
 //!   is missed). The broad-phase trees ([`crate::contact::FixedPrimitives`]) are prepared
 //!   once per pose: the teeth's (the bones are fixed during a solve) and the layout of the
@@ -46,7 +48,7 @@ use crate::contact::planar::DEFAULT_KEEP;
 use crate::contact::surface::{ContactBinding, FaceContact};
 use crate::contact::{
     BarrierPotential, Candidates, Collisions, ContactError, FixedPrimitives, HessianBlock,
-    Projection, VerletList, planar_step_over,
+    Projection, VerletList, refined_step_over,
 };
 
 /// Longest move of a contact vertex in one line-search step (cm, ≈ 3.4·d̂ on the neutral
@@ -93,7 +95,7 @@ pub struct ContactStats {
     pub min_distance: f64,
     /// Barrier stiffness at the end.
     pub stiffness: f64,
-    /// Line-search steps that the step filter ([`crate::contact::planar`]) shortened.
+    /// Line-search steps that the step filter ([`crate::contact::refined`]) shortened.
     pub filter_limited_steps: usize,
     /// Bone-pose stages (1 unless moving the teeth straight to the new pose would cross a
     /// surface; then the pose is reached in collision-free stages).
@@ -120,7 +122,8 @@ pub struct ContactStats {
     pub broad_phase_time: Duration,
     /// Time evaluating the barrier (active sets, value, gradient, Hessian, PSD projection).
     pub barrier_time: Duration,
-    /// Time filtering steps by the pairs' division planes ([`crate::contact::planar`]).
+    /// Time filtering steps (division planes, CCD on the pairs that limit them:
+    /// [`crate::contact::refined`]).
     pub filter_time: Duration,
     /// Time in contact-aware linear algebra (the Woodbury LU or the refactorization, the
     /// extra solves).
@@ -554,7 +557,7 @@ impl<'a> ContactSolve<'a> {
         self.stats.candidate_pairs += self.candidates.len();
         self.stats.broad_phase_time += t.elapsed();
         let t = Instant::now();
-        let report = planar_step_over(mesh, &self.candidates, &self.y, &swept, DEFAULT_KEEP)?;
+        let report = refined_step_over(mesh, &self.candidates, &self.y, &swept, DEFAULT_KEEP)?;
         self.stats.filter_time += t.elapsed();
         if report.step < 1.0 {
             self.stats.filter_limited_steps += 1;

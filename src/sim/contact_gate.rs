@@ -11,8 +11,8 @@
 //! apart, small expressions bring lip pairs a hair inside d̂ with negligible force. Two more
 //! checks make it a *valid* result: (b) no edge crosses a triangle at `x*` (the after-solve
 //! check every contact solve ends with), and (c) the straight-line motion of the contact
-//! surfaces (teeth included) from the start state to `x*` is collision-free (the step filter of `contact::planar`), so the
-//! lips did not pass through each other or the teeth on the way (a lip pushed entirely
+//! surfaces (teeth included) from the start state to `x*` is collision-free (the solver's step
+//! filter, `contact::refined`), so the lips did not pass through each other or the teeth on the way (a lip pushed entirely
 //! through the other ends with no crossing and no close pair, and is still wrong). When any
 //! check fails the attempt is discarded — it ran on a copy of the state, so nothing of it
 //! (positions, L-BFGS history, rotations, bones) leaks — and the full contact solve runs
@@ -34,7 +34,7 @@ use super::simulator::{Frame, SimError, SimState, Simulator};
 use super::solver::{SolveSettings, SolveStats};
 use super::vector::{axpy, norm};
 use crate::contact::barrier::initial_barrier_stiffness;
-use crate::contact::{BarrierPotential, Candidates, Collisions, ContactError, planar_step_over};
+use crate::contact::{BarrierPotential, Candidates, Collisions, ContactError, refined_step_over};
 
 /// The share of each pair's gap the path check keeps (see (c) in `attempt_contact_free`).
 const GATE_KEEP: f64 = 0.01;
@@ -198,10 +198,10 @@ impl Simulator {
             return Ok(Attempt::Refused(GateOutcome::Near));
         }
         // (c) Nothing passed through on the way (teeth included: the bones moved too): every
-        // pair stays on its side of its division plane (`contact::planar`; sufficient, not
+        // pair keeps part of its gap along the whole path (`contact::refined`; sufficient, not
         // necessary, so a refusal only costs the full solve). (a) already refused results
         // with pairs pressed close, so keeping a hundredth of each gap is enough here.
-        let path = planar_step_over(face.mesh(), &candidates, &y0, &dy, GATE_KEEP)?;
+        let path = refined_step_over(face.mesh(), &candidates, &y0, &dy, GATE_KEEP)?;
         if path.step < 1.0 {
             return Ok(Attempt::Refused(GateOutcome::PathCrosses));
         }
