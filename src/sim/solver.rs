@@ -802,9 +802,13 @@ impl Simulator {
                 std::mem::swap(&mut state.x, &mut x_trial);
                 std::mem::swap(&mut g, &mut g_trial);
                 std::mem::swap(&mut steps, &mut trial_steps);
-                let (inverse, near) = self.step_inverse(&steps, contact.as_mut())?;
-                step_inverse = inverse;
-                near_folding = near_folding.max(near);
+                // The preconditioner is rebuilt when its curvature is (see
+                // `ContactSolve::accept`); in between, L-BFGS's pairs follow the change.
+                if contact.as_ref().is_none_or(|c| c.curvature_refreshed()) {
+                    let (inverse, near) = self.step_inverse(&steps, contact.as_mut())?;
+                    step_inverse = inverse;
+                    near_folding = near_folding.max(near);
+                }
                 energy = e;
                 residual = norm(&g) / scale;
                 iterations += 1;
