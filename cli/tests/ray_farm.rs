@@ -45,6 +45,15 @@ fn farm(shots: &Path, out: &Path, extra: &[&str]) -> (Output, serde_json::Value)
     (run, report)
 }
 
+/// Fails, saying what to install, without Ray for Python.
+fn needs_ray() {
+    let check = Command::new(python()).args(["-c", "import ray"]).output();
+    assert!(
+        check.is_ok_and(|o| o.status.success()),
+        "the farm test needs Ray for Python: pip install ray==2.60.0"
+    );
+}
+
 fn text(o: &Output) -> String {
     format!(
         "{}{}",
@@ -55,11 +64,7 @@ fn text(o: &Output) -> String {
 
 #[test]
 fn shots_export_as_ray_tasks_and_a_rerun_continues_where_it_stopped() {
-    let check = Command::new(python()).args(["-c", "import ray"]).output();
-    assert!(
-        check.is_ok_and(|o| o.status.success()),
-        "the farm test needs Ray for Python: pip install ray==2.60.0"
-    );
+    needs_ray();
     let dir = std::env::temp_dir().join(format!("facesim-ray-{}", std::process::id()));
     let (shots, out) = (dir.join("shots"), dir.join("out"));
     std::fs::create_dir_all(&shots).unwrap();
@@ -124,11 +129,7 @@ fn shots_export_as_ray_tasks_and_a_rerun_continues_where_it_stopped() {
 /// rerun skips the shards that are done, and bad arguments are refused.
 #[test]
 fn the_contact_sweep_runs_as_ray_shards_and_merges_them() {
-    let check = Command::new(python()).args(["-c", "import ray"]).output();
-    assert!(
-        check.is_ok_and(|o| o.status.success()),
-        "the farm test needs Ray for Python: pip install ray==2.60.0"
-    );
+    needs_ray();
     let dir = std::env::temp_dir().join(format!("facesim-ray-sweep-{}", std::process::id()));
     let sweep = |extra: &[&str]| {
         let run = Command::new(python())

@@ -12,8 +12,9 @@
 //! checks make it a *valid* result: (b) no edge crosses a triangle at `x*` (the after-solve
 //! check every contact solve ends with), and (c) the straight-line motion of the contact
 //! surfaces (teeth included) from the start state to `x*` is collision-free (the solver's step
-//! filter, `contact::refined`), so the lips did not pass through each other or the teeth on the way (a lip pushed entirely
-//! through the other ends with no crossing and no close pair, and is still wrong). When any
+//! filter, `contact::refined`), so the lips did not pass through each other or the teeth on
+//! the way (a lip pushed entirely through the other ends with no crossing and no close pair,
+//! and is still wrong). When any
 //! check fails the attempt is discarded — it ran on a copy of the state, so nothing of it
 //! (positions, L-BFGS history, rotations, bones) leaks — and the full contact solve runs
 //! from the original state.

@@ -802,13 +802,17 @@ impl Simulator {
                 std::mem::swap(&mut state.x, &mut x_trial);
                 std::mem::swap(&mut g, &mut g_trial);
                 std::mem::swap(&mut steps, &mut trial_steps);
-                // The preconditioner is rebuilt when its curvature is (see
-                // `ContactSolve::accept`); in between, L-BFGS's pairs follow the change.
-                if contact.as_ref().is_none_or(|c| c.curvature_refreshed()) {
+                // The preconditioner is rebuilt when its contact curvature is (see
+                // `ContactSolve::accept`); in between, L-BFGS's pairs follow the change, and
+                // only the count of elements near folding is taken.
+                let near = if contact.as_ref().is_none_or(|c| c.curvature_refreshed()) {
                     let (inverse, near) = self.step_inverse(&steps, contact.as_mut())?;
                     step_inverse = inverse;
-                    near_folding = near_folding.max(near);
-                }
+                    near
+                } else {
+                    self.volume_barrier_curvature(&steps).columns.len()
+                };
+                near_folding = near_folding.max(near);
                 energy = e;
                 residual = norm(&g) / scale;
                 iterations += 1;
