@@ -44,7 +44,7 @@ pub use math::{Matrix12, Vector12};
 pub use mesh::ContactMesh;
 pub use planar::{PlanarReport, planar_step_over};
 pub use potential::{
-    BarrierPotential, HessianBlock, Projection, add_hessian_product, assemble_dense,
+    BarrierPotential, HessianBlock, HessianFactors, Projection, add_hessian_product, assemble_dense,
 };
 pub use refined::{RefinedReport, refined_step_over};
 pub use trust_region::TrustRegion;

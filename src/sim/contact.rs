@@ -3,15 +3,14 @@
 //! elastic energy, with a collision-checked line search and contact-aware steps.
 //!
 //! - **Energy and gradient**: `E(x) + κ·B(y)`, gradient `∇E + κ·Wᵀ∇B`.
-//! - **Steps**: the L-BFGS initial inverse Hessian becomes `(L + K)⁻¹` with
-//!   `K = Wᵀ·[∇²B]₊·W` (PSD-projected barrier Hessian pulled back to the simulation), so the
-//!   barrier's stiffness is in every step. `K` lives on the few simulation vertices the active
-//!   pairs touch (`a` of them), so the prefactored `L` is kept and `K` enters as a low-rank
-//!   update (Woodbury): `(L + UKUᵀ)⁻¹ = L⁻¹ − L⁻¹U·(I + K·G)⁻¹·K·UᵀL⁻¹` with
-//!   `G = UᵀL⁻¹U`, read from columns of `L⁻¹` computed once per simulator (with the volume
-//!   barrier's terms, in [`super::low_rank`]). Each step costs two solves with `L`; the
-//!   dense `3a × 3a` LU is rebuilt with `K` every [`CURVATURE_REFRESH`] accepted steps (or
-//!   when κ changes or contact starts or ends).
+//! - **Steps**: the step's initial inverse Hessian becomes `(L + K)⁻¹` with
+//!   `K = Wᵀ·[∇²B]₊·W` (the barrier Hessian's dominant PSD part, pulled back to the
+//!   simulation), so the barrier's stiffness is in every step. `K` lives on the few
+//!   simulation vertices the active pairs touch, as about one sparse factor column per pair
+//!   ([`DOMINANT_CURVATURE`]), so the prefactored `L` is kept and `K` enters as a low-rank
+//!   (Woodbury) update ([`super::low_rank`]): two solves with `L` a step and a small dense
+//!   Cholesky factor, rebuilt at every accepted step while any pair is active. A step after which the
+//!   active pairs changed is `(L + K)⁻¹g` alone, without L-BFGS's pairs (see the solver).
 //!   [`ContactStep::Refactor`] instead factors the full `3n × 3n` matrix `L⊗I₃ + K` whenever
 //!   `K` is recomputed: `facesim bench contact` measures both (the low-rank update is the
 //!   default because it is faster).
@@ -38,18 +37,17 @@
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use nalgebra::DMatrix;
 use serde::{Deserialize, Serialize};
 
 use super::attachment::BonePose;
 use super::global_matrix::GlobalMatrix;
-use super::low_rank::Curvature;
+use super::low_rank::{Curvature, SparseColumn};
 use crate::contact::barrier::{initial_barrier_stiffness, update_barrier_stiffness};
 use crate::contact::planar::DEFAULT_KEEP;
 use crate::contact::surface::{ContactBinding, FaceContact};
 use crate::contact::{
-    BarrierPotential, Candidates, Collisions, ContactError, FixedPrimitives, HessianBlock,
-    Projection, VerletList, refined_step_over,
+    BarrierPotential, Candidates, Collisions, ContactError, FixedPrimitives, HessianFactors,
+    VerletList, refined_step_over,
 };
 
 /// Longest move of a contact vertex in one line-search step (cm, ≈ 3.4·d̂ on the neutral
@@ -76,14 +74,16 @@ const VERLET_REUSE: f64 = 8.0;
 /// the final preset (many short steps) 1.5× slower.
 const SHORT_STEPS_BEYOND: usize = 3;
 
-/// The barrier's curvature `K` in the steps' preconditioner `(L + K)⁻¹` is recomputed (and the
-/// Woodbury LU rebuilt) after this many accepted steps, or sooner when κ changes or contact
-/// starts or ends. In between, the stale `K` still gives a positive definite `H₀` and L-BFGS's
-/// pairs carry the change. Measured on `bench contact`'s drag and subtle sequences (one
-/// thread, the two builds alongside): 16–46 % less time a frame at every preset, iterations
-/// within −10…+9 %; recomputing whenever the number of active pairs changed (nearly every
-/// step) saved nothing.
-const CURVATURE_REFRESH: usize = 4;
+/// The share of a stencil's largest curvature below which the step's `K` leaves an
+/// eigenpair out ([`crate::contact::psd::positive_part_factors`]): `K` keeps each pair's
+/// dominant direction (the pair's normal), so the low-rank update has about one column per
+/// active pair instead of up to twelve. `K` stays PSD and the preconditioner positive
+/// definite; what it leaves out is a lower bound's gap, the line search covers it. Measured
+/// (`facesim bench editor --contact`, interactive, one thread): keeping every positive
+/// eigenpair gave 480–980 columns for 120–200 simulation vertices and a 449 ms linear
+/// algebra share a frame; keeping above 0.1, 0.5 or 0.99 of the largest took 120–140 ms with
+/// the same iterations, 0.5 the fastest frame.
+const DOMINANT_CURVATURE: f64 = 0.5;
 
 /// How contact-aware steps bring in the barrier's curvature.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -247,68 +247,38 @@ fn trees_here(
     Ok(fixed.clone().expect("set above"))
 }
 
-/// `K = Wᵀ·H·W` over the simulation vertices the blocks touch: dense `3a × 3a`.
-struct PulledBackHessian {
-    vertices: Vec<u32>,
-    k: DMatrix<f64>,
-}
-
-fn pull_back(face: &FaceContact, blocks: &[HessianBlock], n: usize) -> PulledBackHessian {
+/// `K = Wᵀ·[∇²B]₊·W` as factor columns: each stencil's factor `g` (`[∇²B]₊ = Σ ggᵀ`) pulled
+/// back through the bindings, `u = Wᵀg`. A contact vertex embedded with weights `wⱼ` in a
+/// tetrahedron spreads its 3-vector over the tet's four vertices; one the bones carry adds
+/// nothing (the bones are fixed during a solve).
+fn pull_back(face: &FaceContact, stencils: &[HessianFactors]) -> Curvature {
     let bindings = face.bindings();
-    let mut slot = vec![u32::MAX; n];
-    let mut vertices = Vec::new();
-    for b in blocks {
-        for &cv in &b.vertices {
-            if let ContactBinding::Embedded { tet, .. } = bindings[cv as usize] {
-                for v in tet {
-                    if slot[v as usize] == u32::MAX {
-                        slot[v as usize] = 0;
-                        vertices.push(v);
+    let mut columns = Vec::new();
+    for s in stencils {
+        for g in &s.factors {
+            let mut column: SparseColumn = Vec::with_capacity(16);
+            for (p, &cv) in s.vertices.iter().enumerate() {
+                if let ContactBinding::Embedded { tet, weights } = bindings[cv as usize] {
+                    let gp = g.fixed_rows::<3>(3 * p).into_owned();
+                    for (&v, &w) in tet.iter().zip(&weights) {
+                        column.push((v, w * gp));
                     }
                 }
             }
-        }
-    }
-    vertices.sort_unstable();
-    for (i, &v) in vertices.iter().enumerate() {
-        slot[v as usize] = i as u32;
-    }
-    let a = vertices.len();
-    let mut k = DMatrix::zeros(3 * a, 3 * a);
-    for b in blocks {
-        for (p, &cp) in b.vertices.iter().enumerate() {
-            let ContactBinding::Embedded {
-                tet: tp,
-                weights: wp,
-            } = bindings[cp as usize]
-            else {
-                continue;
-            };
-            for (q, &cq) in b.vertices.iter().enumerate() {
-                let ContactBinding::Embedded {
-                    tet: tq,
-                    weights: wq,
-                } = bindings[cq as usize]
-                else {
-                    continue;
-                };
-                let h = b.matrix.fixed_view::<3, 3>(3 * p, 3 * q);
-                for i in 0..4 {
-                    let si = 3 * slot[tp[i] as usize] as usize;
-                    for j in 0..4 {
-                        let sj = 3 * slot[tq[j] as usize] as usize;
-                        let w = wp[i] * wq[j];
-                        for r in 0..3 {
-                            for c in 0..3 {
-                                k[(si + r, sj + c)] += w * h[(r, c)];
-                            }
-                        }
-                    }
+            column.sort_unstable_by_key(|e| e.0);
+            column.dedup_by(|later, kept| {
+                let same = later.0 == kept.0;
+                if same {
+                    kept.1 += later.1;
                 }
+                same
+            });
+            if !column.is_empty() {
+                columns.push(column);
             }
         }
     }
-    PulledBackHessian { vertices, k }
+    Curvature::from_columns(columns)
 }
 
 /// Per-solve contact state: positions, the active set, κ, the step's candidates and solver.
@@ -342,10 +312,11 @@ pub(crate) struct ContactSolve<'a> {
     trial_collisions: Collisions,
     trial_barrier: f64,
     curvature: Curvature,
-    /// Accepted steps since the curvature was computed, and whether any pair was active
-    /// then.
-    steps_since_curvature: usize,
-    curvature_active: bool,
+    /// Whether the last accepted step changed `curvature` (it is recomputed at every step
+    /// while any pair is active, and once when the last pair leaves).
+    curvature_refreshed: bool,
+    /// Whether the last accepted step changed the set of active pairs.
+    active_set_changed: bool,
     pub(crate) stats: ContactStats,
 }
 
@@ -469,11 +440,11 @@ impl<'a> ContactSolve<'a> {
             trial_collisions: Collisions::default(),
             trial_barrier: 0.0,
             curvature: Curvature::default(),
-            steps_since_curvature: 0,
-            curvature_active: false,
+            curvature_refreshed: true,
+            active_set_changed: true,
             stats,
         };
-        solve.update_curvature(g_el.len() / 3)?;
+        solve.update_curvature()?;
         Ok(solve)
     }
 
@@ -607,7 +578,7 @@ impl<'a> ContactSolve<'a> {
 
     /// Moves to the accepted trial point; updates κ and the step solver. Returns the new
     /// `κ·B` (κ may have changed).
-    pub(crate) fn accept(&mut self, n: usize) -> Result<f64, ContactError> {
+    pub(crate) fn accept(&mut self) -> Result<f64, ContactError> {
         std::mem::swap(&mut self.y, &mut self.y_trial);
         std::mem::swap(&mut self.collisions, &mut self.trial_collisions);
         self.holding.clone_from(&self.candidates);
@@ -622,38 +593,49 @@ impl<'a> ContactSolve<'a> {
             1e-9,
         );
         self.prev_min_distance2 = min_d2;
-        let changed = kappa != self.potential.stiffness
-            || self.curvature_active == self.collisions.is_empty()
-            || self.steps_since_curvature + 1 >= CURVATURE_REFRESH;
         self.potential.stiffness = kappa;
-        if changed {
-            self.update_curvature(n)?;
+        let (now, before) = (
+            &self.collisions.collisions,
+            &self.trial_collisions.collisions,
+        );
+        self.active_set_changed = now.len() != before.len()
+            || now
+                .iter()
+                .zip(before)
+                .any(|(a, b)| a.kind != b.kind || a.vertices != b.vertices);
+        if !self.curvature.is_empty() || !self.collisions.is_empty() {
+            self.update_curvature()?;
         } else {
-            self.steps_since_curvature += 1;
+            self.curvature_refreshed = false;
         }
         Ok(self.energy())
     }
 
-    /// Whether the last [`ContactSolve::accept`] refreshed the curvature (the step's
+    /// Whether the last [`ContactSolve::accept`] changed the curvature (the step's
     /// preconditioner is then rebuilt).
     pub(crate) fn curvature_refreshed(&self) -> bool {
-        self.steps_since_curvature == 0
+        self.curvature_refreshed
+    }
+
+    /// Whether the step's L-BFGS pairs no longer describe the energy: the step's curvature
+    /// holds pairs, and the last accepted step changed which pairs are active (the solver
+    /// then takes the step `(L + K)⁻¹g` alone, see `Simulator::solve_with_contact`).
+    pub(crate) fn contact_changed(&self) -> bool {
+        !self.curvature.columns.is_empty() && self.active_set_changed
     }
 
     /// The barrier's curvature at the current `x`, pulled back to the simulation vertices.
-    fn update_curvature(&mut self, n: usize) -> Result<(), ContactError> {
-        self.steps_since_curvature = 0;
-        self.curvature_active = !self.collisions.is_empty();
+    fn update_curvature(&mut self) -> Result<(), ContactError> {
+        self.curvature_refreshed = true;
         if self.collisions.is_empty() {
             self.curvature = Curvature::default();
             return Ok(());
         }
         let t = Instant::now();
-        let blocks =
+        let stencils =
             self.potential
-                .hessian(&self.collisions, &self.y, Projection::ClampEigenvalues)?;
-        let pulled = pull_back(&self.model.face, &blocks, n);
-        self.curvature = Curvature::from_vertex_block(&pulled.vertices, pulled.k);
+                .hessian_factors(&self.collisions, &self.y, DOMINANT_CURVATURE)?;
+        self.curvature = pull_back(&self.model.face, &stencils);
         self.stats.barrier_time += t.elapsed();
         Ok(())
     }
@@ -683,24 +665,29 @@ impl<'a> ContactSolve<'a> {
         self.model.step
     }
 
-    /// `−Wᵀ·[∇²B]₊·dy`: the barrier force on the simulation vertices, to first order, when
-    /// the contact vertices move by `dy` (the pose stages pass the teeth's motion, so the
-    /// lips they press on are predicted to move along; see [`super::staging`]).
+    /// `−Wᵀ·[∇²B]₊·dy`, with `K`'s dominant part of `[∇²B]₊`: the barrier force on the
+    /// simulation vertices, to first order, when the contact vertices move by `dy` (the pose
+    /// stages pass the teeth's motion, so the lips they press on are predicted to move
+    /// along; see [`super::staging`]).
     pub(crate) fn push(&self, dy: &[f64], n: usize) -> Result<Vec<f64>, ContactError> {
-        let blocks =
+        // The same dominant factors as the step's `K`, so that a rigid move of everything
+        // (teeth and tissue) is balanced: `K·Δx + push(Δy) = 0`.
+        let stencils =
             self.potential
-                .hessian(&self.collisions, &self.y, Projection::ClampEigenvalues)?;
+                .hessian_factors(&self.collisions, &self.y, DOMINANT_CURVATURE)?;
         let mut fy = vec![0.0; dy.len()];
-        for b in &blocks {
+        for s in &stencils {
             let v = nalgebra::SVector::<f64, 12>::from_iterator(
-                b.vertices
+                s.vertices
                     .iter()
                     .flat_map(|&i| (0..3).map(move |k| dy[3 * i as usize + k])),
             );
-            let f = b.matrix * v;
-            for (slot, &i) in b.vertices.iter().enumerate() {
-                for k in 0..3 {
-                    fy[3 * i as usize + k] -= f[3 * slot + k];
+            for g in &s.factors {
+                let gv = g.dot(&v);
+                for (slot, &i) in s.vertices.iter().enumerate() {
+                    for k in 0..3 {
+                        fy[3 * i as usize + k] -= g[3 * slot + k] * gv;
+                    }
                 }
             }
         }

@@ -3,28 +3,31 @@
 //!
 //! Two terms of the energy are stiff where `L` knows nothing about them: the contact barrier
 //! (on the few simulation vertices under active pairs) and the volume barrier (on the few
-//! elements close to folding). Both are written as `K = U·C·Uᵀ` with sparse columns `U` (a
-//! column touches a handful of vertices) and a small PSD `C`, and the step's initial inverse
+//! elements close to folding). Both are written as `K = U·Uᵀ` with sparse factor columns `U` (a
+//! column touches a handful of vertices: one per kept eigenvalue of a contact stencil's
+//! Hessian, one per element near folding), and the step's initial inverse
 //! Hessian is, by Woodbury,
 //!
-//! `(L + U·C·Uᵀ)⁻¹ = L⁻¹ − L⁻¹U·S⁻¹·C·UᵀL⁻¹`,  `S = I + C·(UᵀL⁻¹U)`,
+//! `(L + U·Uᵀ)⁻¹ = L⁻¹ − L⁻¹U·S⁻¹·UᵀL⁻¹`,  `S = I + UᵀL⁻¹U`,
 //!
-//! a form that needs no inverse of `C` (the contact block is often singular). `UᵀL⁻¹U` is read
+//! with `S` symmetric positive definite (a Cholesky factor, no pivoting). `UᵀL⁻¹U` is read
 //! from single columns of `L⁻¹` ([`InverseColumns`]), computed once per vertex and kept for
 //! the simulator's life, since `L` never changes. Each step then costs two solves with `L`
-//! and a dense LU of the `r × r` matrix `S` (`r` = columns).
+//! and the Cholesky factor of the `r × r` matrix `S` (`r` = columns), rebuilt with `K`.
 
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 
 use faer::dyn_stack::{MemBuffer, MemStack};
+use faer::linalg::solvers::{Llt, Solve};
 use faer::sparse::linalg::cholesky::{
     CholeskySymbolicParams, LltRef, SymbolicCholesky, SymmetricOrdering,
     factorize_symbolic_cholesky,
 };
 use faer::sparse::{SparseColMat, Triplet};
 use faer::{Conj, Mat, Par, Side};
-use nalgebra::{DMatrix, DVector, Vector3};
+use nalgebra::Vector3;
+use rayon::prelude::*;
 
 use super::contact::ContactStep;
 use super::global_matrix::{GlobalMatrix, SolveScratch};
@@ -83,12 +86,10 @@ impl InverseColumns {
 /// A sparse column of `U`: a 3-vector at each of a few vertices.
 pub(crate) type SparseColumn = Vec<(u32, Vector3<f64>)>;
 
-/// `K = U·C·Uᵀ`: the extra curvature of one step.
+/// `K = U·Uᵀ = Σₚ uₚuₚᵀ`: the extra curvature of one step, as sparse factor columns.
 #[derive(Clone, Debug, Default)]
 pub(crate) struct Curvature {
     pub(crate) columns: Vec<SparseColumn>,
-    /// `r × r`, symmetric positive semidefinite.
-    pub(crate) c: DMatrix<f64>,
 }
 
 impl Curvature {
@@ -96,42 +97,25 @@ impl Curvature {
         self.columns.is_empty()
     }
 
-    /// A dense PSD block `k` (`3a × 3a`) over `vertices`: one unit column per coordinate.
-    pub(crate) fn from_vertex_block(vertices: &[u32], k: DMatrix<f64>) -> Self {
-        let columns = vertices
-            .iter()
-            .flat_map(|&v| (0..3).map(move |c| vec![(v, Vector3::ith(c, 1.0))]))
-            .collect();
-        Self { columns, c: k }
+    /// Factor columns `uₚ` as they are (`K = Σ uₚuₚᵀ`).
+    pub(crate) fn from_columns(columns: Vec<SparseColumn>) -> Self {
+        Self { columns }
     }
 
-    /// Rank-one terms `cᵢ·uᵢ·uᵢᵀ` (`cᵢ ≥ 0`).
+    /// Rank-one terms `cᵢ·uᵢ·uᵢᵀ` (`cᵢ ≥ 0`), stored as `√cᵢ·uᵢ`.
     pub(crate) fn from_rank_one(terms: Vec<(f64, SparseColumn)>) -> Self {
-        let c = DMatrix::from_diagonal(&DVector::from_iterator(
-            terms.len(),
-            terms.iter().map(|t| t.0),
-        ));
-        Self {
-            columns: terms.into_iter().map(|t| t.1).collect(),
-            c,
-        }
+        let columns = terms
+            .into_iter()
+            .filter(|(c, _)| *c > 0.0)
+            .map(|(c, col)| col.into_iter().map(|(v, a)| (v, c.sqrt() * a)).collect())
+            .collect();
+        Self { columns }
     }
 
-    /// `K₁ + K₂`: the columns side by side, `C` block-diagonal.
-    pub(crate) fn plus(self, other: Curvature) -> Curvature {
-        if self.is_empty() {
-            return other;
-        }
-        if other.is_empty() {
-            return self;
-        }
-        let (r1, r2) = (self.columns.len(), other.columns.len());
-        let mut c = DMatrix::zeros(r1 + r2, r1 + r2);
-        c.view_mut((0, 0), (r1, r1)).copy_from(&self.c);
-        c.view_mut((r1, r1), (r2, r2)).copy_from(&other.c);
-        let mut columns = self.columns;
-        columns.extend(other.columns);
-        Curvature { columns, c }
+    /// `K₁ + K₂`: the columns side by side.
+    pub(crate) fn plus(mut self, other: Curvature) -> Curvature {
+        self.columns.extend(other.columns);
+        self
     }
 
     /// Every simulation vertex a column touches, sorted, once each.
@@ -145,23 +129,16 @@ impl Curvature {
     /// `K`'s entries over the whole `3n` system, lower triangle (`row ≥ col`), duplicates
     /// left to be summed: for assembling `L⊗I₃ + K` directly.
     pub(crate) fn lower_triplets(&self) -> Vec<(usize, usize, f64)> {
-        let r = self.columns.len();
         let mut out = Vec::new();
-        for p in 0..r {
-            for q in 0..r {
-                let cpq = self.c[(p, q)];
-                if cpq == 0.0 {
-                    continue;
-                }
-                for &(v, a) in &self.columns[p] {
-                    for &(w, b) in &self.columns[q] {
-                        for i in 0..3 {
-                            for j in 0..3 {
-                                let (gi, gj) = (3 * v as usize + i, 3 * w as usize + j);
-                                let value = cpq * a[i] * b[j];
-                                if gi >= gj && value != 0.0 {
-                                    out.push((gi, gj, value));
-                                }
+        for col in &self.columns {
+            for &(v, a) in col {
+                for &(w, b) in col {
+                    for i in 0..3 {
+                        for j in 0..3 {
+                            let (gi, gj) = (3 * v as usize + i, 3 * w as usize + j);
+                            let value = a[i] * b[j];
+                            if gi >= gj && value != 0.0 {
+                                out.push((gi, gj, value));
                             }
                         }
                     }
@@ -172,26 +149,24 @@ impl Curvature {
     }
 
     /// `Uᵀ·z` for a full-length `z`.
-    fn project(&self, z: &[f64]) -> DVector<f64> {
-        DVector::from_iterator(
-            self.columns.len(),
-            self.columns.iter().map(|col| {
-                col.iter()
-                    .map(|&(v, a)| {
-                        let i = 3 * v as usize;
-                        a.x * z[i] + a.y * z[i + 1] + a.z * z[i + 2]
-                    })
-                    .sum::<f64>()
-            }),
-        )
+    fn project(&self, z: &[f64]) -> Mat<f64> {
+        Mat::from_fn(self.columns.len(), 1, |p, _| {
+            self.columns[p]
+                .iter()
+                .map(|&(v, a)| {
+                    let i = 3 * v as usize;
+                    a.x * z[i] + a.y * z[i + 1] + a.z * z[i + 2]
+                })
+                .sum::<f64>()
+        })
     }
 }
 
 /// `(L + K)⁻¹` applied by Woodbury (module doc).
 pub(crate) struct LowRankInverse {
     curvature: Curvature,
-    /// LU of `S = I + C·(UᵀL⁻¹U)`.
-    s: nalgebra::LU<f64, nalgebra::Dyn, nalgebra::Dyn>,
+    /// Cholesky factor of `S = I + UᵀL⁻¹U` (symmetric positive definite).
+    s: Llt<f64>,
 }
 
 impl LowRankInverse {
@@ -199,49 +174,63 @@ impl LowRankInverse {
         global: &GlobalMatrix,
         columns: &InverseColumns,
         curvature: Curvature,
-    ) -> Self {
+    ) -> Result<Self, String> {
         let vertices = curvature.vertices();
         let inverse = columns.get(global, &vertices);
-        let slot: HashMap<u32, usize> = vertices.iter().enumerate().map(|(i, &v)| (v, i)).collect();
-        // Each column's entries paired with their vertex's column of L⁻¹, looked up once:
-        // (UᵀL⁻¹U)ₚq = Σ over entries (v, a) of p and (w, b) of q of (L⁻¹)ᵥw·⟨a, b⟩.
-        let cols: Vec<Vec<(&[f64], Vector3<f64>)>> = curvature
+        let mut slot = vec![u32::MAX; global.dimension()];
+        for (i, &v) in vertices.iter().enumerate() {
+            slot[v as usize] = i as u32;
+        }
+        // The columns with their entries' slots among the touched vertices.
+        let slotted: Vec<Vec<(usize, Vector3<f64>)>> = curvature
             .columns
             .iter()
-            .map(|col| col.iter().map(|&(v, a)| (&*inverse[slot[&v]], a)).collect())
+            .map(|col| {
+                col.iter()
+                    .map(|&(v, a)| (slot[v as usize] as usize, a))
+                    .collect()
+            })
             .collect();
-        let r = cols.len();
-        let mut m = DMatrix::<f64>::zeros(r, r);
-        for p in 0..r {
-            for q in 0..=p {
-                let mut sum = 0.0;
-                for &(column, a) in &cols[p] {
-                    for &(w, b) in &curvature.columns[q] {
-                        sum += column[w as usize] * a.dot(&b);
+        // zₚ = (L⁻¹uₚ) at the touched vertices, one 3-vector each: zₚ[w] = Σ over entries
+        // (v, a) of uₚ of (L⁻¹)ᵥw·a (L acts on each coordinate alike). Then
+        // (UᵀL⁻¹U)ₚq = Σ over entries (w, b) of u_q of ⟨zₚ[w], b⟩: r·(entries·3a + r·entries)
+        // operations, not r²·entries².
+        let a = vertices.len();
+        let z: Vec<Vec<Vector3<f64>>> = slotted
+            .par_iter()
+            .map(|col| {
+                let mut zp = vec![Vector3::zeros(); a];
+                for &(sv, av) in col {
+                    let column = &inverse[sv];
+                    for (zw, &w) in zp.iter_mut().zip(&vertices) {
+                        *zw += column[w as usize] * av;
                     }
                 }
-                m[(p, q)] = sum;
-                m[(q, p)] = sum;
+                zp
+            })
+            .collect();
+        let r = slotted.len();
+        let mut s = Mat::<f64>::identity(r, r);
+        for p in 0..r {
+            for q in 0..=p {
+                let m: f64 = slotted[q].iter().map(|&(sw, b)| z[p][sw].dot(&b)).sum();
+                s[(p, q)] += m;
             }
         }
-        let mut s = DMatrix::<f64>::identity(r, r);
-        s.gemm(1.0, &curvature.c, &m, 1.0);
-        Self {
-            curvature,
-            s: s.lu(),
-        }
+        let s = s
+            .llt(Side::Lower)
+            .map_err(|e| format!("I + UᵀL⁻¹U is not positive definite: {e:?}"))?;
+        Ok(Self { curvature, s })
     }
 
     /// `d ← (L + K)⁻¹·d`.
     pub(crate) fn apply(&self, global: &GlobalMatrix, d: &mut [f64], scratch: &mut SolveScratch) {
         global.solve_in_place(d, scratch);
-        let t = &self.curvature.c * self.curvature.project(d);
-        let w = self
-            .s
-            .solve(&t)
-            .expect("S = I + C·UᵀL⁻¹U is invertible for PSD C and SPD L");
+        let mut w = self.curvature.project(d);
+        self.s.solve_in_place(w.as_mut());
         let mut back = vec![0.0; d.len()];
-        for (col, &wp) in self.curvature.columns.iter().zip(w.iter()) {
+        for (p, col) in self.curvature.columns.iter().enumerate() {
+            let wp = w[(p, 0)];
             for &(v, a) in col {
                 let i = 3 * v as usize;
                 back[i] += wp * a.x;
@@ -256,6 +245,12 @@ impl LowRankInverse {
     }
 }
 
+/// `L⊗I₃ + K`'s sparse Cholesky factor.
+pub(crate) struct Refactored {
+    symbolic: SymbolicCholesky<usize>,
+    values: Vec<f64>,
+}
+
 /// The initial inverse Hessian `H₀` of one step.
 pub(crate) enum StepInverse {
     /// No extra curvature: `L⁻¹`.
@@ -264,10 +259,7 @@ pub(crate) enum StepInverse {
     LowRank(LowRankInverse),
     /// `L⊗I₃ + K` assembled and factored from scratch: the reference the low-rank update is
     /// measured against (`facesim bench contact`).
-    Refactored {
-        symbolic: SymbolicCholesky<usize>,
-        values: Vec<f64>,
-    },
+    Refactored(Box<Refactored>),
 }
 
 impl StepInverse {
@@ -282,7 +274,7 @@ impl StepInverse {
         }
         Ok(match mode {
             ContactStep::LowRankUpdate => {
-                Self::LowRank(LowRankInverse::new(global, columns, curvature))
+                Self::LowRank(LowRankInverse::new(global, columns, curvature)?)
             }
             ContactStep::Refactor => {
                 let lower = global.lower_entries();
@@ -300,7 +292,7 @@ impl StepInverse {
                 );
                 let (symbolic, values) = factor_triplets(3 * global.dimension(), &triplets)
                     .map_err(|e| format!("factoring L + K failed: {e}"))?;
-                Self::Refactored { symbolic, values }
+                Self::Refactored(Box::new(Refactored { symbolic, values }))
             }
         })
     }
@@ -310,7 +302,8 @@ impl StepInverse {
         match self {
             Self::Plain => global.solve_in_place(d, scratch),
             Self::LowRank(inverse) => inverse.apply(global, d, scratch),
-            Self::Refactored { symbolic, values } => {
+            Self::Refactored(factor) => {
+                let Refactored { symbolic, values } = factor.as_ref();
                 let mut rhs = Mat::<f64>::zeros(d.len(), 1);
                 for (i, &v) in d.iter().enumerate() {
                     rhs[(i, 0)] = v;
@@ -372,16 +365,26 @@ mod tests {
     use super::*;
     use crate::sim::global_matrix::GlobalMatrix;
 
-    /// `(L + K)·((L + K)⁻¹·b) = b` for a contact-like dense block plus rank-one terms that
-    /// share vertices with it, on a real mesh's `L`.
+    /// `(L + K)·((L + K)⁻¹·b) = b` for contact-like factor columns (a stencil's columns
+    /// spread over the vertices of two tetrahedra) plus rank-one terms that share vertices
+    /// with them, on a real mesh's `L`.
     #[test]
     fn the_low_rank_inverse_solves_l_plus_k() {
         let sim = crate::sim::tests::small_simulator();
         let global: &GlobalMatrix = &sim.global;
         let n = global.dimension();
-        let block_vertices = [3u32, 7, 8];
-        let b = DMatrix::<f64>::from_fn(9, 9, |i, j| ((i * 7 + j * 3) % 5) as f64 - 2.0);
-        let k = &b * b.transpose() * 10.0;
+        let stencil_columns: Vec<SparseColumn> = (0..3)
+            .map(|k| {
+                [3u32, 7, 8, 7]
+                    .iter()
+                    .enumerate()
+                    .map(|(i, &v)| {
+                        let f = |j: usize| (((i + 2 * k) * 7 + j * 3) % 5) as f64 - 2.0;
+                        (v, 3.0 * Vector3::new(f(0), f(1), f(2)))
+                    })
+                    .collect()
+            })
+            .collect();
         let rank_one = vec![
             (
                 50.0,
@@ -393,10 +396,15 @@ mod tests {
             (0.0, vec![(2u32, Vector3::new(1.0, 1.0, 1.0))]),
             (3e4, vec![(n as u32 - 1, Vector3::new(0.3, 0.0, -1.0))]),
         ];
-        let curvature = Curvature::from_vertex_block(&block_vertices, k)
-            .plus(Curvature::from_rank_one(rank_one));
+        let curvature =
+            Curvature::from_columns(stencil_columns).plus(Curvature::from_rank_one(rank_one));
+        assert_eq!(
+            curvature.columns.len(),
+            5,
+            "the zero-weight term adds no column"
+        );
         let columns = InverseColumns::default();
-        let inverse = LowRankInverse::new(global, &columns, curvature.clone());
+        let inverse = LowRankInverse::new(global, &columns, curvature.clone()).unwrap();
         assert_eq!(columns.len(), curvature.vertices().len());
         let rhs: Vec<f64> = (0..3 * n).map(|i| ((i * 13) % 7) as f64 - 3.0).collect();
         let mut x = rhs.clone();

@@ -18,7 +18,7 @@ use rayon::prelude::*;
 
 use super::ContactError;
 use super::collisions::{Collision, Collisions};
-use super::math::{Matrix12, stencil};
+use super::math::{Matrix12, Vector12, stencil};
 
 /// `κ·Σ m·b(d², d̂²)` with its activation distance and stiffness.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -222,6 +222,40 @@ impl BarrierPotential {
                     vertices: c.vertices,
                     matrix,
                 }
+            })
+            .collect())
+    }
+}
+
+/// One stencil's PSD-projected Hessian in factored form, `Σ gₖgₖᵀ` ([`psd::positive_part_factors`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct HessianFactors {
+    pub vertices: [u32; 4],
+    pub factors: Vec<Vector12>,
+}
+
+impl BarrierPotential {
+    /// The PSD-projected Hessian of [`BarrierPotential::hessian`], each stencil as the
+    /// factors of its positive part (κ included) with eigenvalues above `keep·λ_max`
+    /// ([`psd::positive_part_factors`]), for low-rank updates.
+    pub fn hessian_factors(
+        &self,
+        collisions: &Collisions,
+        x: &[f64],
+        keep: f64,
+    ) -> Result<Vec<HessianFactors>, ContactError> {
+        self.check(collisions, x)?;
+        self.touching(collisions, x)?;
+        let kappa = self.stiffness;
+        Ok(collisions
+            .collisions
+            .par_iter()
+            .map(|c: &Collision| HessianFactors {
+                vertices: c.vertices,
+                factors: psd::positive_part_factors(
+                    &(kappa * local::hessian(c, &stencil(x, c.vertices))),
+                    keep,
+                ),
             })
             .collect())
     }
