@@ -312,6 +312,9 @@ pub(crate) struct ContactSolve<'a> {
     trial_collisions: Collisions,
     trial_barrier: f64,
     curvature: Curvature,
+    /// The barrier's dominant curvature per active pair at the current `x` (what
+    /// `curvature` is pulled back from; `push` reads it too).
+    stencils: Vec<HessianFactors>,
     /// Whether the last accepted step changed `curvature` (it is recomputed at every step
     /// while any pair is active, and once when the last pair leaves).
     curvature_refreshed: bool,
@@ -440,6 +443,7 @@ impl<'a> ContactSolve<'a> {
             trial_collisions: Collisions::default(),
             trial_barrier: 0.0,
             curvature: Curvature::default(),
+            stencils: Vec::new(),
             curvature_refreshed: true,
             active_set_changed: true,
             stats,
@@ -603,7 +607,7 @@ impl<'a> ContactSolve<'a> {
                 .iter()
                 .zip(before)
                 .any(|(a, b)| a.kind != b.kind || a.vertices != b.vertices);
-        if !self.curvature.is_empty() || !self.collisions.is_empty() {
+        if !self.stencils.is_empty() || !self.collisions.is_empty() {
             self.update_curvature()?;
         } else {
             self.curvature_refreshed = false;
@@ -629,13 +633,14 @@ impl<'a> ContactSolve<'a> {
         self.curvature_refreshed = true;
         if self.collisions.is_empty() {
             self.curvature = Curvature::default();
+            self.stencils.clear();
             return Ok(());
         }
         let t = Instant::now();
-        let stencils =
+        self.stencils =
             self.potential
                 .hessian_factors(&self.collisions, &self.y, DOMINANT_CURVATURE)?;
-        self.curvature = pull_back(&self.model.face, &stencils);
+        self.curvature = pull_back(&self.model.face, &self.stencils);
         self.stats.barrier_time += t.elapsed();
         Ok(())
     }
@@ -670,13 +675,11 @@ impl<'a> ContactSolve<'a> {
     /// stages pass the teeth's motion, so the lips they press on are predicted to move
     /// along; see [`super::staging`]).
     pub(crate) fn push(&self, dy: &[f64], n: usize) -> Result<Vec<f64>, ContactError> {
-        // The same dominant factors as the step's `K`, so that a rigid move of everything
-        // (teeth and tissue) is balanced: `K·Δx + push(Δy) = 0`.
-        let stencils =
-            self.potential
-                .hessian_factors(&self.collisions, &self.y, DOMINANT_CURVATURE)?;
+        // The same dominant factors as the step's `K` (kept current with the active set by
+        // `update_curvature`), so that a rigid move of everything (teeth and tissue) is
+        // balanced: `K·Δx + push(Δy) = 0`.
         let mut fy = vec![0.0; dy.len()];
-        for s in &stencils {
+        for s in &self.stencils {
             let v = nalgebra::SVector::<f64, 12>::from_iterator(
                 s.vertices
                     .iter()

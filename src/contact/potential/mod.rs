@@ -206,6 +206,23 @@ impl BarrierPotential {
         x: &[f64],
         projection: Projection,
     ) -> Result<Vec<HessianBlock>, ContactError> {
+        self.stencil_hessians(collisions, x, |vertices, h| HessianBlock {
+            vertices,
+            matrix: match projection {
+                Projection::None => h,
+                Projection::ClampEigenvalues => psd::project_to_psd(&h),
+            },
+        })
+    }
+
+    /// `each(stencil, κ·∇²bᵢ)` for every collision (in the set's order), after checking the
+    /// positions and that no pair touches.
+    fn stencil_hessians<T: Send>(
+        &self,
+        collisions: &Collisions,
+        x: &[f64],
+        each: impl Fn([u32; 4], Matrix12) -> T + Sync,
+    ) -> Result<Vec<T>, ContactError> {
         self.check(collisions, x)?;
         self.touching(collisions, x)?;
         let kappa = self.stiffness;
@@ -213,15 +230,10 @@ impl BarrierPotential {
             .collisions
             .par_iter()
             .map(|c: &Collision| {
-                let h = kappa * local::hessian(c, &stencil(x, c.vertices));
-                let matrix = match projection {
-                    Projection::None => h,
-                    Projection::ClampEigenvalues => psd::project_to_psd(&h),
-                };
-                HessianBlock {
-                    vertices: c.vertices,
-                    matrix,
-                }
+                each(
+                    c.vertices,
+                    kappa * local::hessian(c, &stencil(x, c.vertices)),
+                )
             })
             .collect())
     }
@@ -244,20 +256,10 @@ impl BarrierPotential {
         x: &[f64],
         keep: f64,
     ) -> Result<Vec<HessianFactors>, ContactError> {
-        self.check(collisions, x)?;
-        self.touching(collisions, x)?;
-        let kappa = self.stiffness;
-        Ok(collisions
-            .collisions
-            .par_iter()
-            .map(|c: &Collision| HessianFactors {
-                vertices: c.vertices,
-                factors: psd::positive_part_factors(
-                    &(kappa * local::hessian(c, &stencil(x, c.vertices))),
-                    keep,
-                ),
-            })
-            .collect())
+        self.stencil_hessians(collisions, x, |vertices, h| HessianFactors {
+            vertices,
+            factors: psd::positive_part_factors(&h, keep),
+        })
     }
 }
 
