@@ -64,7 +64,13 @@ const VERLET_SLACK: f64 = 1.0;
 /// How far (in units of the slack δ) a vertex may have moved from where the Verlet list was
 /// built before a step that leaves the slack rebuilds it rather than adding the pairs
 /// beyond the list's reach from the relative motion ([`VerletList::near_beyond`]).
-const VERLET_REUSE: f64 = 8.0;
+const VERLET_REUSE: f64 = 4.0;
+
+/// How far (in units of the slack δ) a vertex may have moved since the list was built for
+/// a frame's start to keep the last frame's Verlet list: a frame starts with every pair
+/// within reach re-measured, so a list older than this costs more in pairs beyond it than
+/// one rebuild.
+const START_REUSE: f64 = 2.0;
 
 /// Short steps (within the slack) that leave the Verlet list's slack take the pairs beyond
 /// the list from the relative motion ([`VerletList::near_beyond`]) this many times; the next
@@ -375,7 +381,7 @@ impl<'a> ContactSolve<'a> {
                 .all(|(a, b)| (a - b).abs() <= ENDED_HERE);
             here.then(|| (c, ended.pairs.clone()))
         });
-        let kept = || cache.filter(|c| c.list.moved_within(&y, &still, VERLET_REUSE * slack));
+        let kept = || cache.filter(|c| c.list.moved_within(&y, &still, START_REUSE * slack));
         let (verlet, close, built) = match ended_here {
             // Where the last solve ended: its active set.
             Some((c, close)) => (Some(c.clone()), close, false),
@@ -658,6 +664,26 @@ impl<'a> ContactSolve<'a> {
             (None, Some(c)) => &c.fixed,
             (None, None) => unreachable!("a contact solve starts with trees or a list"),
         }
+    }
+
+    /// Every pair that can come within `within` (cm) while the contact vertices move
+    /// straight from `y` to `y + dy` (the teeth with their bones included), from the Verlet
+    /// list this state holds ([`VerletList::near_beyond`]: the list's pairs by their
+    /// distance where it was built less their relative motion since, and the pairs beyond it
+    /// that the relative motion can bring that close); `None` when the state holds no list
+    /// (the caller then runs a swept broad phase). Pairs with an activation distance of their
+    /// own below their closest approach are left out: they cannot touch.
+    pub(crate) fn pairs_along(
+        &self,
+        y: &[f64],
+        dy: &[f64],
+        within: f64,
+    ) -> Result<Option<Candidates>, ContactError> {
+        let Some(ContactCache { fixed, list, .. }) = &self.verlet else {
+            return Ok(None);
+        };
+        let mesh = self.model.face.mesh();
+        Ok(Some(list.near_beyond(mesh, fixed, y, dy, within)?.0))
     }
 
     /// The contact model this solve runs on.

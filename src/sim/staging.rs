@@ -276,13 +276,19 @@ impl Simulator {
             ..CcdOptions::default()
         };
         let mesh = model.face.mesh();
-        let candidates = Candidates::build_swept_on(
-            mesh,
-            carrier.contact.layouts(),
-            &ya,
-            &dy,
-            opts.min_distance,
-        )?;
+        // From the list the carrier's state holds: pairs by their relative motion (the lips
+        // and the teeth moving with the jaw are not candidates of each other); otherwise
+        // every pair whose swept boxes overlap.
+        let candidates = match carrier.contact.pairs_along(&ya, &dy, opts.min_distance)? {
+            Some(pairs) => pairs,
+            None => Candidates::build_swept_on(
+                mesh,
+                carrier.contact.layouts(),
+                &ya,
+                &dy,
+                opts.min_distance,
+            )?,
+        };
         // Pairs already close at rest may be closer than half the gap; they only must not
         // touch (CCD keeps a tenth of their distance).
         let (close, others) = candidates.split_close(mesh);

@@ -127,6 +127,7 @@ impl Candidates {
             moving,
             &box_of,
             &fixed,
+            fixed.fits(),
             &|a: &Box3, b: &Box3| a.overlaps(b),
             &|a: &Box3, b: &Box3| a.overlaps(b),
         )
@@ -142,13 +143,14 @@ impl Candidates {
     /// only meet open primitives), *mixed* otherwise (it can only meet open ones too). Pairs
     /// are then open–open and open–mixed (the moving trees), open–fixed (the fixed trees).
     /// Without such a split every primitive is open and nothing is fixed.
-    fn from_split<B: Bound>(
+    fn from_split<B: Bound, F: Bound>(
         mesh: &ContactMesh,
         moving: &MovingLayouts,
         bound_of: &(impl Fn(&[u32]) -> B + Sync),
         fixed: &FixedTrees,
+        fixed_fits: FixedFits<'_, F>,
         test: &(impl Fn(&B, &B) -> bool + Sync),
-        test_fixed: &(impl Fn(&B, &Box3) -> bool + Sync),
+        test_fixed: &(impl Fn(&B, &F) -> bool + Sync),
     ) -> Self {
         let split = mesh.groups_split_by_universal();
         let universal = |v: u32| !split || mesh.touches_all(v);
@@ -191,8 +193,8 @@ impl Candidates {
         let test = |a: &Celled<B>, b: &Celled<B>| {
             test(&a.bound, &b.bound) && !mesh.cells_keep_apart(a.cell, b.cell)
         };
-        let test_fixed = |a: &Celled<B>, b: &Box3| test_fixed(&a.bound, b);
-        let flipped = |a: &Box3, b: &Celled<B>| test_fixed(b, a);
+        let test_fixed = |a: &Celled<B>, b: &F| test_fixed(&a.bound, b);
+        let flipped = |a: &F, b: &Celled<B>| test_fixed(b, a);
 
         // Point–triangle: touch-all vertices against moving and fixed faces, fixed vertices
         // against open faces.
@@ -211,13 +213,13 @@ impl Candidates {
         });
         point_triangle.extend(pairs(
             vertex_tree,
-            fixed.face.fitted(),
+            fixed_fits.face,
             false,
             &test_fixed,
             &|i, j, out| push_pt(moving.vertices[i as usize], fixed.faces[j as usize], out),
         ));
         point_triangle.extend(pairs(
-            fixed.vertex.fitted(),
+            fixed_fits.vertex,
             face_tree,
             false,
             &flipped,
@@ -254,7 +256,7 @@ impl Candidates {
         });
         edge_edge.extend(pairs(
             edge_tree,
-            fixed.edge.fitted(),
+            fixed_fits.edge,
             false,
             &test_fixed,
             &|i, j, out| {
@@ -408,6 +410,36 @@ impl FixedTree {
     }
 }
 
+/// The fixed trees' node and primitive bounds for one query.
+struct FixedFits<'a, F> {
+    vertex: Fitted<'a, F>,
+    face: Fitted<'a, F>,
+    edge: Fitted<'a, F>,
+}
+
+/// Per-query bounds of the fixed primitives and of their trees' nodes (on the trees'
+/// layouts): e.g. their boxes where the trees were built with their displacements since.
+struct FixedBounds<F> {
+    vertex: (Vec<F>, Vec<F>),
+    face: (Vec<F>, Vec<F>),
+    edge: (Vec<F>, Vec<F>),
+}
+
+impl<F: Bound> FixedBounds<F> {
+    fn fits<'a>(&'a self, trees: &'a FixedTrees) -> FixedFits<'a, F> {
+        let fitted = |tree: &'a FixedTree, (nodes, items): &'a (Vec<F>, Vec<F>)| Fitted {
+            layout: &tree.layout,
+            nodes,
+            items,
+        };
+        FixedFits {
+            vertex: fitted(&trees.vertex, &self.vertex),
+            face: fitted(&trees.face, &self.face),
+            edge: fitted(&trees.edge, &self.edge),
+        }
+    }
+}
+
 /// Trees over the fixed primitives (see `Candidates::from_split`): faces and
 /// edges with no touch-all vertex, and the vertices outside the touch-all groups.
 struct FixedTrees {
@@ -420,6 +452,43 @@ struct FixedTrees {
 }
 
 impl FixedTrees {
+    /// The trees' own boxes (where they were built).
+    fn fits(&self) -> FixedFits<'_, Box3> {
+        FixedFits {
+            vertex: self.vertex.fitted(),
+            face: self.face.fitted(),
+            edge: self.edge.fitted(),
+        }
+    }
+
+    /// Bounds `bound(vertices, box where built)` of every fixed primitive, and of the
+    /// trees' nodes by refitting them on the trees' layouts.
+    fn moved_bounds<F: Bound>(
+        &self,
+        mesh: &ContactMesh,
+        bound: impl Fn(&[u32], &Box3) -> F + Sync,
+    ) -> FixedBounds<F> {
+        fn of<'m, F: Bound>(
+            tree: &FixedTree,
+            ids: &'m [u32],
+            stencil: impl Fn(&'m u32) -> &'m [u32] + Sync,
+            bound: &(impl Fn(&[u32], &Box3) -> F + Sync),
+        ) -> (Vec<F>, Vec<F>) {
+            let items: Vec<F> = ids
+                .par_iter()
+                .zip(&tree.boxes)
+                .map(|(i, at)| bound(stencil(i), at))
+                .collect();
+            (tree.layout.fit(&items), items)
+        }
+        let (faces, edges) = (mesh.faces(), mesh.edges());
+        FixedBounds {
+            vertex: of(&self.vertex, &self.vertices, std::slice::from_ref, &bound),
+            face: of(&self.face, &self.faces, |&f| &faces[f as usize][..], &bound),
+            edge: of(&self.edge, &self.edges, |&e| &edges[e as usize][..], &bound),
+        }
+    }
+
     fn new(mesh: &ContactMesh, box_of: &(impl Fn(&[u32]) -> Box3 + Sync)) -> Self {
         let split = mesh.groups_split_by_universal();
         let fixed = |v: &u32| split && !mesh.touches_all(*v);
@@ -536,6 +605,7 @@ impl Candidates {
             &fixed.moving,
             &box_of,
             &fixed.trees,
+            fixed.trees.fits(),
             &|a: &Box3, b: &Box3| a.overlaps(b),
             &grown_overlap(0.5 * inflation),
         ))
@@ -558,6 +628,7 @@ impl Candidates {
             &fixed.moving,
             &|ids: &[u32]| boxes.of(ids),
             &fixed.trees,
+            fixed.trees.fits(),
             &|a: &Box3, b: &Box3| a.overlaps(b),
             &grown_overlap(0.5 * inflation),
         ))
@@ -595,6 +666,7 @@ impl Candidates {
             &fixed.moving,
             &bound_of,
             &fixed.trees,
+            fixed.trees.fits(),
             &|a: &SweptBound, b: &SweptBound| {
                 a.swept.overlaps(&b.swept) && !apart(&a.at, &a.moved, &b.at, &b.moved, dhat)
             },
@@ -635,19 +707,23 @@ impl Candidates {
             ),
         });
         let bound_of = |ids: &[u32]| bounds.of(ids);
-        // The fixed primitives' trees stay as built at `x0`; their vertices may have moved
-        // since (the bones' next pose), all within one box of displacements.
-        let fixed_moved = Box3::around_iter(
-            fixed
-                .trees
-                .vertices
-                .iter()
-                .flat_map(|&v| [Point3::from(vertex(start, v)), Point3::from(vertex(end, v))]),
-            0.0,
-        );
+        // The fixed primitives' trees keep their layout and their boxes at `x0`; their
+        // vertices may have moved since (the bones' next pose): each primitive and node gets
+        // the box of its own vertices' displacements, so the teeth moving with the jaw are
+        // bounded relative to the lip moving with it (one box of every fixed vertex's
+        // displacement made each lip vertex near the lower teeth a candidate of every tooth
+        // while the jaw moved).
+        let fixed_bounds = fixed.trees.moved_bounds(mesh, |ids: &[u32], at: &Box3| {
+            let moved = Box3::around_iter(
+                ids.iter()
+                    .flat_map(|&v| [Point3::from(vertex(start, v)), Point3::from(vertex(end, v))]),
+                0.0,
+            );
+            MovedBound { at: *at, moved }
+        });
         let together = listed - dhat - APART_TOLERANCE;
-        let may_meet = |at_a: &Box3, moved_a: &Box3, at_b: &Box3, moved_b: &Box3| {
-            let (gap, far) = gap_and_reach(at_a, moved_a, at_b, moved_b);
+        let may_meet = |a: &MovedBound, b: &MovedBound| {
+            let (gap, far) = gap_and_reach(&a.at, &a.moved, &b.at, &b.moved);
             far > together && gap - far <= dhat + APART_TOLERANCE
         };
         Ok(Self::from_split(
@@ -655,8 +731,9 @@ impl Candidates {
             &fixed.moving,
             &bound_of,
             &fixed.trees,
-            &|a: &MovedBound, b: &MovedBound| may_meet(&a.at, &a.moved, &b.at, &b.moved),
-            &|a: &MovedBound, b: &Box3| may_meet(&a.at, &a.moved, b, &fixed_moved),
+            fixed_bounds.fits(&fixed.trees),
+            &may_meet,
+            &may_meet,
         ))
     }
 }
