@@ -34,7 +34,7 @@ pub struct ExportArgs {
     /// The sample face to animate, by name or index (default: the face the track names).
     #[arg(long)]
     pub face: Option<String>,
-    /// Lip and teeth contact in every frame: on or off (default: the track's, else off).
+    /// Lip and teeth contact in every frame: on or off (default: the track's, else on).
     #[arg(long, value_parser = clap::builder::BoolishValueParser::new())]
     pub contact: Option<bool>,
     /// Only frames A..B of the track (B excluded; `A..` to the end), numbered as in the whole

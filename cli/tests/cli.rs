@@ -166,6 +166,84 @@ fn export_drives_the_face_with_the_chosen_actuation() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
+/// `export` renders at the final preset with contact unless told otherwise: on a lip press
+/// (mouthPress_L/R at 1 with mouthClose at 0.5, and back) every frame converges and no crossing
+/// the audit finds involves the skin or the lining among itself, where without contact the lips
+/// pass through each other in every pressed frame. The deep mouth lining still meets the teeth,
+/// as the rig's own shapes do (it is outside the contact surface; docs/guide/export.md).
+#[test]
+fn export_defaults_to_final_with_contact_and_keeps_the_pressed_lips_apart() {
+    let dir = std::env::temp_dir().join(format!("facesim-cli-press-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let track = dir.join("press.json");
+    let mut press = vec![0.0; 19];
+    (press[4], press[15], press[16]) = (0.5, 1.0, 1.0);
+    let key = |t: f64, e: &Vec<f64>| serde_json::json!({"time": t, "codes": {"expression": e, "style": [0.0, 0.0, 0.0, 0.0]}});
+    let rest = vec![0.0; 19];
+    std::fs::write(
+        &track,
+        serde_json::json!({"format": "facesim-track", "version": 1, "face": "neutral",
+                           "keys": [key(0.0, &rest), key(0.5, &press), key(1.0, &rest)]})
+        .to_string(),
+    )
+    .unwrap();
+    let export = |extra: &[&str]| {
+        let out = dir.join(if extra.is_empty() { "default" } else { "off" });
+        let run = facesim()
+            .arg("export")
+            .arg(&track)
+            .args(["--format", "pc2", "--fps", "10"])
+            .args(extra)
+            .arg("--out")
+            .arg(&out)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&run.stderr).into_owned();
+        assert!(run.status.success(), "{err}");
+        let report = std::fs::read_to_string(out.join("press.report.json")).unwrap();
+        let report: serde_json::Value = serde_json::from_str(&report).unwrap();
+        (err, report)
+    };
+    let pieces = |report: &serde_json::Value| -> Vec<String> {
+        let mut all: Vec<String> = report["frames"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .flat_map(|f| f["crossing_pieces"].as_array().unwrap().clone())
+            .map(|p| p[0].as_str().unwrap().to_owned())
+            .collect();
+        all.sort();
+        all.dedup();
+        all
+    };
+
+    let (text, report) = export(&[]);
+    assert!(
+        text.contains("at the final preset, contact on")
+            && text.contains("0 of 11 frames unconverged"),
+        "{text}"
+    );
+    assert_eq!(
+        (report["quality"].as_str(), report["contact"].as_bool()),
+        (Some("final"), Some(true))
+    );
+    let with_contact = pieces(&report);
+    assert!(
+        with_contact
+            .iter()
+            .all(|p| p == "lower teeth / mouth socket" || p == "mouth socket / upper teeth"),
+        "with contact: {with_contact:?}"
+    );
+
+    let (_, report) = export(&["--contact", "off"]);
+    assert!(
+        pieces(&report).contains(&"face skin / face skin".to_owned()),
+        "without contact the pressed lips cross: {:?}",
+        pieces(&report)
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}
+
 /// `add-face` refuses a mesh off the rig's topology, naming the file and what it needs, and
 /// leaves the sample as it was.
 #[test]

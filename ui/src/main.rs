@@ -41,7 +41,7 @@ struct Cli {
     /// Also stream frames to rerun: `spawn`, `connect [URL]` or `save FILE.rrd`.
     #[arg(long, global = true, num_args = 1..=2, value_names = ["MODE", "ARG"])]
     rerun: Vec<String>,
-    /// Quality preset to start with (interactive if not given; `export` takes the track's).
+    /// Quality preset to start with (interactive if not given; `export` takes the track's, else final).
     #[arg(long, global = true)]
     quality: Option<Quality>,
     /// What the sliders drive: the fitted per-shape bases or the trained networks.

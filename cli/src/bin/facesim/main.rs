@@ -47,7 +47,7 @@ enum Command {
         #[arg(long, default_value = facesim::sample::SAMPLE_DIR)]
         sample: PathBuf,
         /// Solver preset for every frame: interactive, preview or final (default: the
-        /// track's, else interactive).
+        /// track's, else final).
         #[arg(long)]
         quality: Option<facesim::sim::Quality>,
         /// What drives the face: its fitted basis, or the sample's networks through its φ.
