@@ -76,6 +76,7 @@ fn main() -> Result<()> {
     for reach in REACHES {
         let settings = FaceContactSettings {
             lip_reach: reach,
+            lining_reach: reach,
             ..FaceContactSettings::default()
         };
         let contact = FaceContact::new(&model, &settings)?;

@@ -69,8 +69,10 @@ impl ContactMesh {
     }
 
     /// Like [`ContactMesh::new`], with a group per simulation vertex and a symmetric matrix
-    /// `can_touch[g][h]`: a pair is considered only if every vertex of one primitive may touch
-    /// every vertex of the other (e.g. upper teeth vs lower teeth off, lips vs teeth on).
+    /// `can_touch[g][h]`: a pair is considered only if some vertex of one primitive may touch
+    /// some vertex of the other ([`ContactMesh::primitives_may_touch`]; e.g. upper teeth vs
+    /// lower teeth off, lips vs teeth on, and a lining edge half on the jaw, half in the
+    /// tissue, against a lower tooth on: its tissue end can cross the tooth).
     pub fn with_groups(
         rest: &[f64],
         faces: Vec<[u32; 3]>,
@@ -316,6 +318,15 @@ impl ContactMesh {
             .map(|a| (0..g).all(|b| self.can_touch[a * g + b]))
             .collect();
         (0..g).all(|a| universal[a] || (0..g).all(|b| self.can_touch[a * g + b] == universal[b]))
+    }
+
+    /// Whether primitives (these vertices) `a` and `b` may be in contact: some vertex of one
+    /// may touch some vertex of the other. With the face's groups (the tissue touches
+    /// everything, what a bone carries only the tissue) that is every pair with a vertex the
+    /// solver moves against the others.
+    #[inline]
+    pub fn primitives_may_touch(&self, a: &[u32], b: &[u32]) -> bool {
+        a.iter().any(|&p| b.iter().any(|&q| self.can_touch(p, q)))
     }
 
     /// Whether vertices `a` and `b` may be in contact (by their groups).

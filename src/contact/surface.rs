@@ -21,8 +21,10 @@
 //! one-to-one maps while the solver keeps the elements at positive volume, so they can never
 //! meet.
 //! Edge–triangle crossings present at rest (the rig's own, between pieces the importer does
-//! not repair) are recorded and left out of the after-solve check, which reports only new
-//! ones.
+//! not repair: the lining behind the lower incisors passes through the gum) are recorded, and
+//! their edges and triangles are left out of the after-solve check, as in the independent
+//! audit (`model::audit`): an interpenetration there from the start slides to the
+//! neighbouring triangle as the lining moves (it is then a new pair, not a new crossing).
 
 use nalgebra::{Matrix3, Point3};
 use rayon::prelude::*;
@@ -125,6 +127,9 @@ pub struct FaceContact {
     sim_vertex_count: usize,
     /// Edge–triangle crossings already present at rest: `(edge, face)`, sorted.
     rest_crossings: Vec<(u32, u32)>,
+    /// Their edges and faces, sorted (left out of the crossing check).
+    rest_crossing_edges: Vec<u32>,
+    rest_crossing_faces: Vec<u32>,
     /// The simulation vertices the embedded contact vertices depend on, sorted.
     region_sim_vertices: Vec<u32>,
     /// Counts per piece, for reports: lips/skin, mouth socket, upper teeth, lower teeth.
@@ -238,12 +243,22 @@ impl FaceContact {
             jaw_pivot,
             sim_vertex_count,
             rest_crossings: Vec::new(),
+            rest_crossing_edges: Vec::new(),
+            rest_crossing_faces: Vec::new(),
             region_sim_vertices,
             piece_counts,
             lip_line,
             crossing_layouts,
         };
-        contact.rest_crossings = contact.crossings(&rest, false);
+        let rest_crossings = contact.crossings(&rest, false);
+        let sorted = |mut v: Vec<u32>| {
+            v.sort_unstable();
+            v.dedup();
+            v
+        };
+        contact.rest_crossing_edges = sorted(rest_crossings.iter().map(|p| p.0).collect());
+        contact.rest_crossing_faces = sorted(rest_crossings.iter().map(|p| p.1).collect());
+        contact.rest_crossings = rest_crossings;
         Ok(contact)
     }
 
@@ -296,7 +311,8 @@ impl FaceContact {
         self.mesh.close_pair_counts()
     }
 
-    /// Edge–triangle crossings present at rest (left out of [`FaceContact::new_crossings`]).
+    /// Edge–triangle crossings present at rest (their edges and faces are left out of
+    /// [`FaceContact::new_crossings`]).
     pub fn rest_crossing_count(&self) -> usize {
         self.rest_crossings.len()
     }
@@ -380,16 +396,14 @@ impl FaceContact {
                 if t.contains(&a) || t.contains(&b) {
                     return;
                 }
-                let rigid_pair = [a, b]
-                    .iter()
-                    .all(|&p| t.iter().all(|&q| !self.mesh.can_touch(p, q)));
-                if rigid_pair {
+                if !self.mesh.primitives_may_touch(&[a, b], &t) {
                     return;
                 }
                 let (pa, pb) = (Point3::from(vertex(y, a)), Point3::from(vertex(y, b)));
                 let tp = t.map(|v| Point3::from(vertex(y, v)));
                 if segment_crosses_triangle(&pa, &pb, [&tp[0], &tp[1], &tp[2]], t)
-                    && self.rest_crossings.binary_search(&(e, f)).is_err()
+                    && self.rest_crossing_edges.binary_search(&e).is_err()
+                    && self.rest_crossing_faces.binary_search(&f).is_err()
                 {
                     out.push((e, f));
                 }
@@ -426,4 +440,75 @@ fn face_neighbours(tets: &[[u32; 4]], cells: &[u32]) -> Vec<(u32, u32)> {
         .filter(|w| w[0].0 == w[1].0)
         .map(|w| (w[0].1, w[1].1))
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A tooth (two rigid triangles sharing the diagonal 1–2 of the unit square at z = 0) and a
+    /// lining triangle: `a` in the tissue, `b` and `c` on the jaw, its edge a–b through the
+    /// tooth's first triangle at rest (as the rig's lining passes through its gum).
+    fn lining_through_a_tooth() -> (FaceContact, Vec<f64>) {
+        let rest = vec![
+            0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 1.0, 1.0, 0.0, // tooth
+            0.5, 0.4, -0.5, 0.5, 0.4, 0.5, 2.0, 0.4, 0.5, // lining a, b, c
+        ];
+        let jaw = |v: usize| ContactBinding::Rigid {
+            bone: Bone::Jaw,
+            rest: Point3::new(rest[3 * v], rest[3 * v + 1], rest[3 * v + 2]),
+        };
+        let mut bindings: Vec<ContactBinding> = (0..7).map(jaw).collect();
+        bindings[4] = ContactBinding::Embedded {
+            tet: [0, 1, 2, 3],
+            weights: [1.0, 0.0, 0.0, 0.0],
+        };
+        let mut cells = vec![(NO_CELL, false); 7];
+        cells[4] = (0, true);
+        let parts = SurfaceParts {
+            render_vertices: (0..7).collect(),
+            rest: rest.clone(),
+            faces: vec![[0, 1, 2], [1, 3, 2], [4, 5, 6]],
+            bindings,
+            cells,
+            dhat: 0.01,
+            jaw_pivot: Point3::origin(),
+            sim_vertex_count: 4,
+            piece_counts: [0, 3, 0, 4],
+            lip_line: vec![Point3::new(0.5, 0.4, 0.5)],
+        };
+        (
+            FaceContact::from_parts(parts, &[[0, 1, 2, 3]]).unwrap(),
+            rest,
+        )
+    }
+
+    /// The named crossings at `y`: (edge's vertices, face's vertices).
+    fn crossings_at(contact: &FaceContact, y: &[f64]) -> Vec<([u32; 2], [u32; 3])> {
+        let mesh = contact.mesh();
+        contact
+            .new_crossings(y)
+            .into_iter()
+            .map(|(e, f)| (mesh.edges()[e as usize], mesh.faces()[f as usize]))
+            .collect()
+    }
+
+    #[test]
+    fn a_crossing_there_at_rest_may_slide_and_a_new_one_is_found() {
+        let (contact, rest) = lining_through_a_tooth();
+        assert!(contact.rest_crossing_count() > 0);
+        assert!(crossings_at(&contact, &rest).is_empty());
+        // `a` moves so that a–b passes through the tooth's other triangle: the same
+        // interpenetration, slid across the shared edge, is not new.
+        let mut slid = rest.clone();
+        slid[13] = 0.7;
+        assert!(crossings_at(&contact, &slid).is_empty());
+        // The jaw-bound end `c` of a–c brought over the tooth: a–c (half in the tissue) now
+        // crosses the second triangle, which crossed nothing at rest.
+        let mut new = rest.clone();
+        new[18..21].copy_from_slice(&[1.0, 0.9, 0.5]);
+        let mut edge = [4, 6];
+        edge.sort_unstable();
+        assert_eq!(crossings_at(&contact, &new), vec![(edge, [1, 3, 2])]);
+    }
 }

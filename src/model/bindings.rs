@@ -91,10 +91,9 @@ pub enum BindingError {
 }
 
 /// Mouth lining within this distance (cm, at rest) of the lip line is always carried by the
-/// tissue, never by the bones: it is the part of the mouth the contact surfaces cover (the
-/// default `FaceContactSettings::lip_reach`), and an edge between a lining vertex on the
-/// bones and one in the tissue is one the contact could not keep off a tooth (it tracks
-/// pairs only where one side is all tissue).
+/// tissue, never by the bones: the lips roll and press it (the default
+/// `FaceContactSettings::lip_reach`), and a lining vertex the bones carry there would hold its
+/// tissue neighbours' edges against the teeth.
 pub const TISSUE_LINING_REACH: f64 = 1.5;
 
 /// Distance from `p` to the nearest of `points` (infinite if there are none).

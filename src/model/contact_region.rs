@@ -1,8 +1,8 @@
 //! Which part of a face takes part in contact (the *contact region*), and the face's contact
 //! surface built from it ([`FaceContact::new`]):
 //! - the **lip line**: skin vertices that the mouth socket shares (the inner edge of the lips);
-//! - **lips and inner mouth**: face-skin and mouth-socket vertices within `lip_reach` (cm, at
-//!   rest) of the lip line;
+//! - **lips and inner mouth**: face-skin vertices within `lip_reach` (cm, at rest) of the lip
+//!   line, and mouth-socket (lining) vertices within `lining_reach`;
 //! - **teeth**: upper- and lower-teeth vertices within `teeth_reach` of those (the front teeth
 //!   the lips can reach; molars stay out).
 //!
@@ -20,8 +20,11 @@ use crate::rig::Region;
 /// Which part of the face takes part in contact.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct FaceContactSettings {
-    /// Skin and mouth-socket vertices within this distance of the lip line (cm, at rest).
+    /// Skin vertices within this distance of the lip line (cm, at rest).
     pub lip_reach: f64,
+    /// Mouth-socket (lining) vertices within this distance of the lip line (cm, at rest).
+    #[serde(default = "default_lining_reach")]
+    pub lining_reach: f64,
     /// Teeth vertices within this distance of the soft contact vertices (cm, at rest).
     pub teeth_reach: f64,
 }
@@ -30,16 +33,28 @@ impl Default for FaceContactSettings {
     fn default() -> Self {
         Self {
             lip_reach: super::bindings::TISSUE_LINING_REACH,
+            lining_reach: default_lining_reach(),
             teeth_reach: 0.8,
         }
     }
 }
 
+/// The lining the lips roll and press, all of it carried by the tissue
+/// ([`super::bindings::TISSUE_LINING_REACH`]). Deeper lining reaches the teeth too (a lip press
+/// pushes the lining behind the lower incisors, 2–3 cm from the lip line, through them, as the
+/// rig's own shape does), but taking it into contact makes the solves stiff: at 2 cm, a lip
+/// press at the final preset takes 4–10× the iterations and 2 of 11 frames stop at the cap
+/// (docs/performance/contact.md).
+fn default_lining_reach() -> f64 {
+    super::bindings::TISSUE_LINING_REACH
+}
+
 impl FaceContact {
     /// The contact surface of `model`'s contact region (see the module doc).
     pub fn new(model: &FaceModel, settings: &FaceContactSettings) -> Result<Self, ContactError> {
-        let finite = settings.lip_reach.is_finite() && settings.teeth_reach.is_finite();
-        if !(settings.lip_reach > 0.0 && settings.teeth_reach >= 0.0 && finite) {
+        let reaches = [settings.lip_reach, settings.lining_reach];
+        let finite = reaches.iter().all(|r| r.is_finite()) && settings.teeth_reach.is_finite();
+        if !(reaches.iter().all(|&r| r > 0.0) && settings.teeth_reach >= 0.0 && finite) {
             return Err(ContactError::InvalidParameter(format!(
                 "contact region reaches must be finite and positive, got {settings:?}"
             )));
@@ -77,8 +92,12 @@ impl FaceContact {
         let soft: Vec<bool> = (0..render.rest.len())
             .into_par_iter()
             .map(|i| {
-                matches!(region[i], Some(Region::FaceSkin | Region::MouthSocket))
-                    && near(&render.rest[i], &line_points, settings.lip_reach)
+                let reach = match region[i] {
+                    Some(Region::FaceSkin) => settings.lip_reach,
+                    Some(Region::MouthSocket) => settings.lining_reach,
+                    _ => return false,
+                };
+                near(&render.rest[i], &line_points, reach)
             })
             .collect();
         let soft_points: Vec<Point3<f64>> = (0..render.rest.len())
@@ -138,7 +157,7 @@ impl FaceContact {
                 Binding::Blended { .. } => Err(ContactError::InvalidMesh(format!(
                     "render vertex {r} of the contact region is blended between the tissue and \
                      the skull (skin outside the tissue); contact takes embedded or rigid \
-                     vertices only: lower lip_reach/teeth_reach"
+                     vertices only: lower lip_reach/lining_reach/teeth_reach"
                 ))),
             })
             .collect::<Result<_, _>>()?;

@@ -139,10 +139,11 @@ impl Candidates {
     /// touch.
     ///
     /// With groups split into touch-all (soft tissue) and touch-only-those (rigid pieces), a
-    /// primitive is *open* when all its vertices touch all, *fixed* when none does (it can
-    /// only meet open primitives), *mixed* otherwise (it can only meet open ones too). Pairs
-    /// are then open–open and open–mixed (the moving trees), open–fixed (the fixed trees).
-    /// Without such a split every primitive is open and nothing is fixed.
+    /// primitive is *moving* when some vertex touches all and *fixed* when none does. A pair
+    /// may touch only if it has a touch-all vertex ([`ContactMesh::primitives_may_touch`]),
+    /// so pairs are moving–moving (the moving trees) and moving–fixed (against the fixed
+    /// trees); fixed–fixed pairs never touch. Without such a split every primitive is moving
+    /// and nothing is fixed.
     fn from_split<B: Bound, F: Bound>(
         mesh: &ContactMesh,
         moving: &MovingLayouts,
@@ -152,8 +153,6 @@ impl Candidates {
         test: &(impl Fn(&B, &B) -> bool + Sync),
         test_fixed: &(impl Fn(&B, &F) -> bool + Sync),
     ) -> Self {
-        let split = mesh.groups_split_by_universal();
-        let universal = |v: u32| !split || mesh.touches_all(v);
         let faces = mesh.faces();
         let edges = mesh.edges();
         let celled = |ids: &[u32]| Celled {
@@ -197,17 +196,16 @@ impl Candidates {
         let flipped = |a: &F, b: &Celled<B>| test_fixed(b, a);
 
         // Point–triangle: touch-all vertices against moving and fixed faces, fixed vertices
-        // against open faces.
+        // against moving faces.
         let keep_pt = |v: u32, f: u32| {
             let tri = faces[f as usize];
-            !tri.contains(&v) && tri.iter().all(|&t| mesh.can_touch(v, t))
+            !tri.contains(&v) && mesh.primitives_may_touch(&[v], &tri)
         };
         let push_pt = |v: u32, f: u32, out: &mut Vec<PointTriangleCandidate>| {
             if keep_pt(v, f) {
                 out.push(PointTriangleCandidate { vertex: v, face: f });
             }
         };
-        let open_face = |f: u32| faces[f as usize].iter().all(|&v| universal(v));
         let mut point_triangle = pairs(vertex_tree, face_tree, false, &test, &|i, j, out| {
             push_pt(moving.vertices[i as usize], moving.faces[j as usize], out)
         });
@@ -223,24 +221,16 @@ impl Candidates {
             face_tree,
             false,
             &flipped,
-            &|i, j, out| {
-                let f = moving.faces[j as usize];
-                if open_face(f) {
-                    push_pt(fixed.vertices[i as usize], f, out);
-                }
-            },
+            &|i, j, out| push_pt(fixed.vertices[i as usize], moving.faces[j as usize], out),
         ));
 
-        // Edge–edge: moving edges against each other (each pair once), open edges against
-        // fixed edges.
+        // Edge–edge: moving edges against each other (each pair once) and against fixed
+        // edges.
         let keep_ee = |ea: u32, eb: u32| {
             let [a0, a1] = edges[ea as usize];
             let [b0, b1] = edges[eb as usize];
             let shares = a0 == b0 || a0 == b1 || a1 == b0 || a1 == b1;
-            !shares
-                && [a0, a1]
-                    .iter()
-                    .all(|&p| mesh.can_touch(p, b0) && mesh.can_touch(p, b1))
+            !shares && mesh.primitives_may_touch(&[a0, a1], &[b0, b1])
         };
         let push_ee = |ea: u32, eb: u32, out: &mut Vec<EdgeEdgeCandidate>| {
             if keep_ee(ea, eb) {
@@ -250,7 +240,6 @@ impl Candidates {
                 });
             }
         };
-        let open_edge = |e: u32| edges[e as usize].iter().all(|&v| universal(v));
         let mut edge_edge = pairs(edge_tree, edge_tree, true, &test, &|i, j, out| {
             push_ee(moving.edges[i as usize], moving.edges[j as usize], out)
         });
@@ -259,12 +248,7 @@ impl Candidates {
             fixed_fits.edge,
             false,
             &test_fixed,
-            &|i, j, out| {
-                let ea = moving.edges[i as usize];
-                if open_edge(ea) {
-                    push_ee(ea, fixed.edges[j as usize], out);
-                }
-            },
+            &|i, j, out| push_ee(moving.edges[i as usize], fixed.edges[j as usize], out),
         ));
         // Each pair was found once (the trees hold disjoint primitives): sorting makes the
         // lists independent of the traversal.

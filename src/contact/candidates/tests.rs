@@ -183,22 +183,25 @@ fn split_groups_miss_no_allowed_pair_and_close_pairs_activate_late() {
     let (pt, ee) = brute_force(&mesh, &x, dhat);
     let allowed_pt: Vec<_> = pt
         .into_iter()
-        .filter(|p| {
-            let f = mesh.faces()[p.face as usize];
-            f.iter().all(|&t| mesh.can_touch(p.vertex, t))
-        })
+        .filter(|p| mesh.primitives_may_touch(&[p.vertex], &mesh.faces()[p.face as usize]))
         .collect();
     let allowed_ee: Vec<_> = ee
         .into_iter()
         .filter(|e| {
-            let [a0, a1] = mesh.edges()[e.edge_a as usize];
-            let [b0, b1] = mesh.edges()[e.edge_b as usize];
-            [a0, a1]
-                .iter()
-                .all(|&a| mesh.can_touch(a, b0) && mesh.can_touch(a, b1))
+            let edges = mesh.edges();
+            mesh.primitives_may_touch(&edges[e.edge_a as usize], &edges[e.edge_b as usize])
         })
         .collect();
     assert!(!allowed_pt.is_empty() && !allowed_ee.is_empty());
+    // Among them pairs of a primitive half on a bone against one wholly on a bone: the soft
+    // end can cross the rigid piece, so they are candidates too.
+    let rigid = |v: &u32| !mesh.touches_all(*v);
+    let edges = mesh.edges();
+    let mixed = |e: &[u32; 2]| e.iter().any(rigid) && !e.iter().all(rigid);
+    assert!(allowed_ee.iter().any(|e| {
+        let (a, b) = (edges[e.edge_a as usize], edges[e.edge_b as usize]);
+        (a.iter().all(rigid) && mixed(&b)) || (b.iter().all(rigid) && mixed(&a))
+    }));
     let c = Candidates::build(&mesh, &x, dhat).unwrap();
     for p in &allowed_pt {
         assert!(c.point_triangle.binary_search(p).is_ok(), "missed {p:?}");
