@@ -43,8 +43,8 @@ impl Default for FaceContactSettings {
 /// ([`super::bindings::TISSUE_LINING_REACH`]). Deeper lining reaches the teeth too (a lip press
 /// pushes the lining behind the lower incisors, 2–3 cm from the lip line, through them, as the
 /// rig's own shape does), but taking it into contact makes the solves stiff: at 2 cm, a lip
-/// press at the final preset takes 4–10× the iterations and 2 of 11 frames stop at the cap
-/// (docs/performance/contact.md).
+/// press at the final preset finds no equilibrium by its third frame, because the lining's
+/// pairs touching the gum at rest pin it (docs/performance/contact.md).
 fn default_lining_reach() -> f64 {
     super::bindings::TISSUE_LINING_REACH
 }

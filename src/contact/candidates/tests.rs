@@ -181,22 +181,19 @@ fn split_groups_miss_no_allowed_pair_and_close_pairs_activate_late() {
     assert!(mesh.groups_split_by_universal());
     let dhat = 0.05;
     let (pt, ee) = brute_force(&mesh, &x, dhat);
+    let edges = mesh.edges();
     let allowed_pt: Vec<_> = pt
         .into_iter()
         .filter(|p| mesh.primitives_may_touch(&[p.vertex], &mesh.faces()[p.face as usize]))
         .collect();
     let allowed_ee: Vec<_> = ee
         .into_iter()
-        .filter(|e| {
-            let edges = mesh.edges();
-            mesh.primitives_may_touch(&edges[e.edge_a as usize], &edges[e.edge_b as usize])
-        })
+        .filter(|e| mesh.primitives_may_touch(&edges[e.edge_a as usize], &edges[e.edge_b as usize]))
         .collect();
     assert!(!allowed_pt.is_empty() && !allowed_ee.is_empty());
     // Among them pairs of a primitive half on a bone against one wholly on a bone: the soft
     // end can cross the rigid piece, so they are candidates too.
     let rigid = |v: &u32| !mesh.touches_all(*v);
-    let edges = mesh.edges();
     let mixed = |e: &[u32; 2]| e.iter().any(rigid) && !e.iter().all(rigid);
     assert!(allowed_ee.iter().any(|e| {
         let (a, b) = (edges[e.edge_a as usize], edges[e.edge_b as usize]);
