@@ -12,7 +12,9 @@
 //! (neighbours along the finely tessellated surface, e.g. where the mouth socket turns from
 //! embedded to rigid; on the sample 0.38–1 d̂ apart) get their own activation distance, half
 //! their rest distance ([`CLOSE_PAIR_ACTIVATION`], [`FaceContact::close_pairs`]): the barrier
-//! is zero at rest, and CCD tracks them like every other pair. Left out of contact
+//! is zero at rest, weighted to act at that scale as the plain one does at d̂
+//! (`Collision::weight`), and CCD tracks them like every other pair. Pairs closer than
+//! [`ATTACHED_AT_REST`]·d̂ (the rig's lining lying on its gum) are attached: neither. Left out of contact
 //! altogether, as they were, a lip edge slid through the jaw-bound mouth lining it rests
 //! against (3 of ~1,000 random codes ended with crossings the after-solve check caught).
 //! Pairs of primitives each wholly inside one simulation element, the same one or two
@@ -85,6 +87,13 @@ impl ContactBinding {
 
 /// A pair within d̂ at rest is activated at this fraction of its rest distance.
 pub const CLOSE_PAIR_ACTIVATION: f64 = 0.5;
+
+/// A pair closer than this fraction of d̂ at rest is attached, not in contact: its
+/// activation distance is 0, so neither the barrier nor CCD takes it. (The rig's mouth
+/// lining lies on, and through, the lower gum: pairs 1e-5 cm apart at rest would otherwise
+/// get an activation of 5e-6 cm, and CCD, keeping a share of that gap, cuts every step that
+/// moves the lining to a sliver.)
+pub const ATTACHED_AT_REST: f64 = 0.1;
 
 /// Vertex groups: who may touch whom.
 const SOFT: u16 = 0;
@@ -195,7 +204,11 @@ impl FaceContact {
             let d = kind
                 .distance_squared(&super::math::stencil(&rest, ids))
                 .sqrt();
-            (d < dhat).then_some(CLOSE_PAIR_ACTIVATION * d)
+            (d < dhat).then_some(if d < ATTACHED_AT_REST * dhat {
+                0.0
+            } else {
+                CLOSE_PAIR_ACTIVATION * d
+            })
         };
         let close_pt: Vec<((u32, u32), f64)> = candidates
             .point_triangle

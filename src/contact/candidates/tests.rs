@@ -244,6 +244,8 @@ fn split_groups_miss_no_allowed_pair_and_close_pairs_activate_late() {
     let active = Collisions::from_candidates(&with_close(2.0), &c, &x, dhat).unwrap();
     let own = active.collisions.iter().find(|k| is_p0(k)).unwrap();
     assert!((own.activation2 - 4.0 * d_pt * d_pt).abs() < 1e-15);
+    assert_eq!(own.weight, (dhat * dhat / own.activation2).powi(2));
+    assert!(plain.collisions.iter().all(|k| k.weight == 1.0));
 }
 
 /// With the rigid stripes' trees built once ([`FixedPrimitives`]), static and swept

@@ -60,6 +60,12 @@ pub struct Collision {
     /// The squared distance (cm²) below which the barrier acts on this pair: d̂², or less for
     /// a pair already close at rest ([`ContactMesh::with_close_pairs`]).
     pub activation2: f64,
+    /// The barrier's weight, `(d̂²/activation²)²`: 1, but for a pair close at rest, whose
+    /// barrier is then the plain one in units of its own activation distance
+    /// (`b(d², a²)·(d̂²/a²)² = b(s²d̂², d̂²)` with `s = d/a`, `b` quartic in the scale). Unweighted,
+    /// a pair activated at 0.06 d̂ would push back 10⁻⁵ as hard at the same relative gap,
+    /// and be squeezed to 10⁻⁶ cm, where every step that moves it is cut to a sliver.
+    pub weight: f64,
     /// Edge–edge mollifier threshold `ε_x` (cm⁴); 0 for point–triangle pairs.
     pub eps_x: f64,
 }
@@ -120,6 +126,7 @@ impl Collisions {
                 dtype: CollisionType::PointTriangle(t),
                 distance_squared: d,
                 activation2,
+                weight: (dhat * dhat / activation2).powi(2),
                 eps_x: 0.0,
             })
         });
@@ -137,6 +144,7 @@ impl Collisions {
                 dtype: CollisionType::EdgeEdge(t),
                 distance_squared: d,
                 activation2,
+                weight: (dhat * dhat / activation2).powi(2),
                 eps_x: mesh.mollifier_threshold(c.edge_a as usize, c.edge_b as usize),
             })
         });

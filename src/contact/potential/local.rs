@@ -59,7 +59,7 @@ fn mollified(c: &Collision, p: &[Vec3; 4]) -> Option<f64> {
 /// `m·b(d, d̂²)` (unit stiffness), `+∞` at `d ≤ 0`.
 pub fn value(c: &Collision, p: &[Vec3; 4]) -> f64 {
     let dhat2 = c.activation2;
-    let b = barrier(c.kind.distance_squared(p), dhat2);
+    let b = c.weight * barrier(c.kind.distance_squared(p), dhat2);
     match mollified(c, p) {
         Some(cross) if b != 0.0 => mollifier(cross, c.eps_x) * b,
         _ => b,
@@ -70,14 +70,14 @@ pub fn value(c: &Collision, p: &[Vec3; 4]) -> f64 {
 pub fn gradient(c: &Collision, p: &[Vec3; 4]) -> Vector12 {
     let dhat2 = c.activation2;
     let (d, gd) = distance_gradient(c.kind, p);
-    let b1 = barrier_first_derivative(d, dhat2);
+    let b1 = c.weight * barrier_first_derivative(d, dhat2);
     match mollified(c, p) {
         None => b1 * gd,
         Some(cross) => {
             let m = mollifier(cross, c.eps_x);
             let gm = mollifier_derivative(cross, c.eps_x)
                 * edge_edge_cross_squarednorm_gradient(&p[0], &p[1], &p[2], &p[3]);
-            (m * b1) * gd + barrier(d, dhat2) * gm
+            (m * b1) * gd + c.weight * barrier(d, dhat2) * gm
         }
     }
 }
@@ -91,8 +91,8 @@ pub fn hessian(c: &Collision, p: &[Vec3; 4]) -> Matrix12 {
 fn hessian_unsymmetrized(c: &Collision, p: &[Vec3; 4]) -> Matrix12 {
     let dhat2 = c.activation2;
     let (d, gd, hd) = distance_derivatives(c.kind, p);
-    let b1 = barrier_first_derivative(d, dhat2);
-    let b2 = barrier_second_derivative(d, dhat2);
+    let b1 = c.weight * barrier_first_derivative(d, dhat2);
+    let b2 = c.weight * barrier_second_derivative(d, dhat2);
     let plain = b2 * (gd * gd.transpose()) + b1 * hd;
     match mollified(c, p) {
         None => plain,
@@ -105,7 +105,9 @@ fn hessian_unsymmetrized(c: &Collision, p: &[Vec3; 4]) -> Matrix12 {
             let gm = m1 * gc;
             let hm = m2 * (gc * gc.transpose()) + m1 * hc;
             let cross_terms = gm * gd.transpose();
-            m * plain + b1 * (cross_terms + cross_terms.transpose()) + barrier(d, dhat2) * hm
+            m * plain
+                + b1 * (cross_terms + cross_terms.transpose())
+                + c.weight * barrier(d, dhat2) * hm
         }
     }
 }

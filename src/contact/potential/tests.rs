@@ -159,3 +159,40 @@ fn touching_pairs_and_mismatches_are_errors() {
     assert_eq!(pot.value(&set, &x).unwrap(), 0.0);
     assert_eq!(set.min_distance_squared(), 1e-4);
 }
+
+/// A pair close at rest, activated at `a < d̂` and weighted `(d̂²/a²)²`, is the plain pair in
+/// units of its own activation distance: at the gap `s·a` its barrier equals the plain pair's
+/// at `s·d̂`, and its push is `d̂/a` times as strong. Unweighted it would be `(a/d̂)⁴` as weak.
+#[test]
+fn a_close_pairs_barrier_is_the_plain_one_at_its_own_scale() {
+    let (dhat, a) = (0.03, 0.004);
+    let pair = |gap: f64, activation: f64| {
+        let p = [
+            crate::contact::math::Vec3::new(0.2, 0.3, gap),
+            crate::contact::math::Vec3::new(0.0, 0.0, 0.0),
+            crate::contact::math::Vec3::new(1.0, 0.0, 0.0),
+            crate::contact::math::Vec3::new(0.0, 1.0, 0.0),
+        ];
+        let c = Collision {
+            kind: CollisionKind::PointTriangle,
+            vertices: [0, 1, 2, 3],
+            dtype: CollisionType::PointTriangle(
+                crate::contact::distance::PointTriangleDistanceType::Face,
+            ),
+            distance_squared: gap * gap,
+            activation2: activation * activation,
+            weight: (dhat / activation).powi(4),
+            eps_x: 0.0,
+        };
+        (local::value(&c, &p), local::gradient(&c, &p)[2])
+    };
+    for s in [0.05, 0.3, 0.7, 0.95] {
+        let (close, plain) = (pair(s * a, a), pair(s * dhat, dhat));
+        assert!(plain.0 > 0.0);
+        assert!(
+            (close.0 / plain.0 - 1.0).abs() < 1e-12,
+            "s = {s}: {close:?} vs {plain:?}"
+        );
+        assert!((close.1 / plain.1 - dhat / a).abs() < 1e-9 * dhat / a);
+    }
+}

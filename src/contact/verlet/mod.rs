@@ -299,7 +299,7 @@ impl VerletList {
 /// both skip it: close pairs would otherwise pass every step, being within d̂ from the
 /// start.)
 fn activates(closest: f64, dhat: f64, own: impl Fn() -> Option<f64>) -> bool {
-    closest < dhat && own().is_none_or(|a| closest < a)
+    closest < dhat && own().is_none_or(|a| a > 0.0 && closest < a)
 }
 
 /// Whether both ends of every vertex's move `y → y + dy` are within `distance` of `y0`.

@@ -328,3 +328,15 @@ fn close_pairs_are_near_only_when_they_can_reach_their_own_activation() {
     );
     assert!(left_out > 0, "small steps must leave close pairs out");
 }
+
+/// A pair attached at rest (activation 0, [`crate::contact::surface::ATTACHED_AT_REST`]) is
+/// never a candidate, however close; a close pair is one below its own activation distance,
+/// and any other pair below d̂.
+#[test]
+fn an_attached_pair_never_activates() {
+    assert!(!activates(0.0, 1.0, || Some(0.0)));
+    assert!(activates(0.1, 1.0, || Some(0.2)));
+    assert!(!activates(0.3, 1.0, || Some(0.2)));
+    assert!(activates(0.9, 1.0, || None));
+    assert!(!activates(1.0, 1.0, || None));
+}
