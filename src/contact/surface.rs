@@ -14,8 +14,8 @@
 //! their rest distance ([`CLOSE_PAIR_ACTIVATION`], [`FaceContact::close_pairs`]): the barrier
 //! is zero at rest, weighted to act at that scale as the plain one does at d̂
 //! (`Collision::weight`), and CCD tracks them like every other pair. Pairs closer than
-//! [`ATTACHED_AT_REST`]·d̂ (the rig's lining lying on its gum) are attached: neither. Left out of contact
-//! altogether, as they were, a lip edge slid through the jaw-bound mouth lining it rests
+//! [`ATTACHED_AT_REST`]·d̂ (the rig's lining lying on its gum) are attached: neither. Left
+//! out of contact altogether, as they were, a lip edge slid through the jaw-bound mouth lining it rests
 //! against (3 of ~1,000 random codes ended with crossings the after-solve check caught).
 //! Pairs of primitives each wholly inside one simulation element, the same one or two
 //! sharing a face, are left out of contact and of the solver's after-solve crossing check

@@ -42,9 +42,9 @@ impl Default for FaceContactSettings {
 /// The lining the lips roll and press, all of it carried by the tissue
 /// ([`super::bindings::TISSUE_LINING_REACH`]). Deeper lining reaches the teeth too (a lip press
 /// pushes the lining behind the lower incisors, 2–3 cm from the lip line, through them, as the
-/// rig's own shape does), but taking it into contact makes the solves stiff: at 2 cm, a lip
-/// press at the final preset finds no equilibrium by its third frame, because the lining's
-/// pairs touching the gum at rest pin it (docs/performance/contact.md).
+/// rig's own shape does). Taken into contact to 3 cm it keeps a press crossing-free, but a jaw
+/// opening then cannot be staged: the lining lying on the lower gum moves with the tissue, not
+/// the jaw, and every stage closes its 10⁻³ cm gap (docs/performance/contact.md).
 fn default_lining_reach() -> f64 {
     super::bindings::TISSUE_LINING_REACH
 }

@@ -110,7 +110,12 @@ impl Collisions {
     ) -> Result<Self, ContactError> {
         check_dhat(dhat)?;
         mesh.check_positions(x)?;
-        let activation2 = |own: Option<f64>| own.map_or(dhat * dhat, |a| a * a);
+        // (activation², weight) of a pair with its own activation distance, or of a plain one.
+        let scale = |own: Option<f64>| {
+            own.map_or((dhat * dhat, 1.0), |a| {
+                (a * a, (dhat * dhat / (a * a)).powi(2))
+            })
+        };
         let faces = mesh.faces();
         let edges = mesh.edges();
         let pt = candidates.point_triangle.par_iter().map(|c| {
@@ -119,14 +124,14 @@ impl Collisions {
             let p = stencil(x, vertices);
             let t = point_triangle_distance_type(&p[0], &p[1], &p[2], &p[3]);
             let d = point_triangle_distance_typed(&p[0], &p[1], &p[2], &p[3], t);
-            let activation2 = activation2(mesh.point_triangle_activation(c.vertex, c.face));
+            let (activation2, weight) = scale(mesh.point_triangle_activation(c.vertex, c.face));
             (d < activation2).then_some(Collision {
                 kind: CollisionKind::PointTriangle,
                 vertices,
                 dtype: CollisionType::PointTriangle(t),
                 distance_squared: d,
                 activation2,
-                weight: (dhat * dhat / activation2).powi(2),
+                weight,
                 eps_x: 0.0,
             })
         });
@@ -137,14 +142,14 @@ impl Collisions {
             let p = stencil(x, vertices);
             let t = edge_edge_distance_type(&p[0], &p[1], &p[2], &p[3]);
             let d = edge_edge_distance_typed(&p[0], &p[1], &p[2], &p[3], t);
-            let activation2 = activation2(mesh.edge_edge_activation(c.edge_a, c.edge_b));
+            let (activation2, weight) = scale(mesh.edge_edge_activation(c.edge_a, c.edge_b));
             (d < activation2).then_some(Collision {
                 kind: CollisionKind::EdgeEdge,
                 vertices,
                 dtype: CollisionType::EdgeEdge(t),
                 distance_squared: d,
                 activation2,
-                weight: (dhat * dhat / activation2).powi(2),
+                weight,
                 eps_x: mesh.mollifier_threshold(c.edge_a as usize, c.edge_b as usize),
             })
         });

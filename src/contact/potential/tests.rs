@@ -3,7 +3,9 @@
 
 use super::*;
 use crate::contact::collisions::{CollisionKind, CollisionType};
+use crate::contact::distance::PointTriangleDistanceType;
 use crate::contact::distance::mollifier::edge_edge_cross_squarednorm;
+use crate::contact::math::Vec3;
 use crate::contact::test_scenes::{two_sheet_mesh, two_sheets};
 
 /// Sheets at about d̂/2 with jitter: every distance type, and (aligned grids) mollified pairs.
@@ -168,17 +170,15 @@ fn a_close_pairs_barrier_is_the_plain_one_at_its_own_scale() {
     let (dhat, a) = (0.03, 0.004);
     let pair = |gap: f64, activation: f64| {
         let p = [
-            crate::contact::math::Vec3::new(0.2, 0.3, gap),
-            crate::contact::math::Vec3::new(0.0, 0.0, 0.0),
-            crate::contact::math::Vec3::new(1.0, 0.0, 0.0),
-            crate::contact::math::Vec3::new(0.0, 1.0, 0.0),
+            Vec3::new(0.2, 0.3, gap),
+            Vec3::new(0.0, 0.0, 0.0),
+            Vec3::new(1.0, 0.0, 0.0),
+            Vec3::new(0.0, 1.0, 0.0),
         ];
         let c = Collision {
             kind: CollisionKind::PointTriangle,
             vertices: [0, 1, 2, 3],
-            dtype: CollisionType::PointTriangle(
-                crate::contact::distance::PointTriangleDistanceType::Face,
-            ),
+            dtype: CollisionType::PointTriangle(PointTriangleDistanceType::Face),
             distance_squared: gap * gap,
             activation2: activation * activation,
             weight: (dhat / activation).powi(4),
