@@ -4,7 +4,7 @@
 //! follows (the side of the mouth slit it is on, and how the deep mouth moves between the
 //! bones).
 
-use nalgebra::{Matrix3, Point3};
+use nalgebra::{Matrix3, Point3, Vector3};
 
 use super::face::Binding;
 use crate::rig::jaw::{JawError, fit_rigid};
@@ -32,6 +32,8 @@ pub(super) struct BoneMotion {
     /// two rigid motions gives (jawOpen: 4.4 mm mean error for the mix, 0.06 mm for `M`, on
     /// the template's lining).
     pub(super) jaw_map: Vec<Matrix3<f64>>,
+    /// The jaw's rigid motion `jₖ` at each vertex in each jaw shape (cm).
+    jaw_motions: Vec<Vec<Vector3<f64>>>,
     pub(super) jaw_fit_rms: f64,
     skull_motion: f64,
     jaw_match: f64,
@@ -56,6 +58,7 @@ impl BoneMotion {
         let (mut jaw_mismatch, mut jaw_motion) = (vec![f64::INFINITY; n], vec![0.0; n]);
         let mut jaw_fit_rms = 0.0;
         let mut jaw_slip = vec![0.0f64; n];
+        let mut jaw_motions = vec![Vec::new(); n];
         for name in ExpressionCode::NAMES {
             let Some(code) = ExpressionCode::single(name, 1.0) else {
                 continue;
@@ -81,6 +84,7 @@ impl BoneMotion {
                 let rigid = pose.target(Bone::Jaw, &pivot, &base[v]) - base[v];
                 moved[v] += (posed[v] - base[v]) * rigid.transpose();
                 jaw[v] += rigid * rigid.transpose();
+                jaw_motions[v].push(rigid);
                 if name == "jawOpen" {
                     jaw_motion[v] = rigid.norm();
                     jaw_mismatch[v] =
@@ -117,6 +121,7 @@ impl BoneMotion {
             jaw_slip,
             jaw_share,
             jaw_map,
+            jaw_motions,
             jaw_fit_rms,
             skull_motion,
             jaw_match,
@@ -156,7 +161,39 @@ impl BoneMotion {
     /// its jaw map is within [`SNAP_TO_BONE`] of none or all of the jaw's motion, else by its
     /// jaw map ([`Binding::Bones`]).
     pub(super) fn bone_binding(&self, v: usize) -> Binding {
+        Self::snapped(self.jaw_map[v])
+    }
+
+    /// [`BoneMotion::bone_binding`] for a vertex `gap` (cm) from `bone`'s surface at rest, in
+    /// direction `away` (unit, from the surface to the vertex): its jaw map drawn toward the
+    /// bone's own (`M_b = I` for the jaw, `0` for the skull) just enough that in no jaw shape
+    /// does it move toward that surface by more than half the gap, relative to the bone:
+    /// `M' = s·M + (1 − s)·M_b` moves it by `s·(M − M_b)·jₖ`, so
+    /// `s = min(1, minₖ ½·gap / max(0, −away·(M − M_b)·jₖ))`. The rig's lining behind the
+    /// lower incisors (`M ≈ 1.1·I`) goes through the gum from 0.15–0.4 cm away; the lining
+    /// that stretches away from the gums as the mouth opens keeps the rig's motion.
+    pub(super) fn bone_binding_near(
+        &self,
+        v: usize,
+        bone: Bone,
+        gap: f64,
+        away: &Vector3<f64>,
+    ) -> Binding {
+        let own = match bone {
+            Bone::Skull => Matrix3::zeros(),
+            Bone::Jaw => Matrix3::identity(),
+        };
         let m = self.jaw_map[v];
+        let s = self.jaw_motions[v]
+            .iter()
+            .map(|j| -away.dot(&((m - own) * j)))
+            .filter(|&toward| toward > 0.0)
+            .map(|toward| 0.5 * gap / toward)
+            .fold(1.0, f64::min);
+        Self::snapped(m * s + own * (1.0 - s))
+    }
+
+    fn snapped(m: Matrix3<f64>) -> Binding {
         if m.norm() <= SNAP_TO_BONE {
             Binding::Rigid(Bone::Skull)
         } else if (m - Matrix3::identity()).norm() <= SNAP_TO_BONE {

@@ -40,11 +40,13 @@ impl Default for FaceContactSettings {
 }
 
 /// The lining the lips roll and press, all of it carried by the tissue
-/// ([`super::bindings::TISSUE_LINING_REACH`]). Deeper lining reaches the teeth too (a lip press
-/// pushes the lining behind the lower incisors, 2–3 cm from the lip line, through them, as the
-/// rig's own shape does). Taken into contact to 3 cm it keeps a press crossing-free, but a jaw
-/// opening then cannot be staged: the lining lying on the lower gum moves with the tissue, not
-/// the jaw, and every stage closes its 10⁻³ cm gap (docs/performance/contact.md).
+/// ([`super::bindings::TISSUE_LINING_REACH`]). Deeper lining reaches the teeth too: a lip press
+/// pushes the lining behind the lower incisors (2–3 cm from the lip line) through them, as the
+/// rig's own shape does, and a smile's jaw opening carries the cheeks' inside (to 4.9 cm) through
+/// the lower molars. With the lining on the gums riding on their bones
+/// ([`super::bindings::ON_GUM`]), 6 cm (every tooth's lining) exports the smile crossing-free,
+/// but the random sweeps' large jaw swings still fail (crossings after the solve, or more than
+/// 64 stages; docs/performance/contact.md).
 fn default_lining_reach() -> f64 {
     super::bindings::TISSUE_LINING_REACH
 }
