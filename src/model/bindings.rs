@@ -457,19 +457,18 @@ pub(super) fn fit_to_rig(
                 Some(Region::MouthSocket) => true,
                 _ => return None,
             };
+            if let Some(gum) = on_gum[i].filter(|gum| gum.distance <= ON_GUM) {
+                let binding = Binding::Rigid(gum.bone);
+                return Some((binding, fits.errors(face, i, &binding)));
+            }
             let p = render.rest[i];
-            let on_bones = match on_gum[i] {
-                Some(gum) if gum.distance <= ON_GUM => {
-                    let binding = Binding::Rigid(gum.bone);
-                    return Some((binding, fits.errors(face, i, &binding)));
-                }
-                Some(gum) => motion.bone_binding_near(v, gum.bone, gum.ring, &gum.away),
-                None => motion.bone_binding(v),
-            };
             let current = render.bindings[i];
             let mut candidates = Vec::new();
             if lining && !near_lips[i] {
-                candidates.push(on_bones);
+                candidates.push(match on_gum[i] {
+                    Some(gum) => motion.bone_binding_near(v, gum.bone, gum.ring, &gum.away),
+                    None => motion.bone_binding(v),
+                });
             }
             if !lining || current.element().is_some() {
                 candidates.push(current);
