@@ -158,9 +158,12 @@ pub fn neutral_face(
     let rig = load_rig()?;
     progress(&format!("building the neutral face at {}", lod.name()));
     let face = crate::model::build_face(&rig, None, &lod.settings())?;
-    let basis = ActuationBasis::fit(&rig, &face, &|done, total, shape| {
-        progress(&format!("fitting {}: {done}/{total} {shape}", lod.name()))
-    })?;
+    let basis = ActuationBasis::fit(
+        &rig,
+        &face,
+        crate::rig::StyleCode::NEUTRAL,
+        &|done, total, shape| progress(&format!("fitting {}: {done}/{total} {shape}", lod.name())),
+    )?;
     std::fs::create_dir_all(models_dir).map_err(|source| FaceCacheError::Io {
         path: models_dir.to_path_buf(),
         source,

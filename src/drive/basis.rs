@@ -6,6 +6,24 @@
 //! weight is zero, and `Aₖ` at a single weight of one. Jaw parameters `[θ; t]` blend
 //! linearly. This is the per-identity model without a canonical space (each face has its
 //! own basis): the editor's driver until the networks are trained, and their baseline.
+//!
+//! **The face's own style.** A style turns a slider into several rig shapes at weights other
+//! than one (identity000's jawOpen is jawOpen 1.24 with mouthLowerDown 0.5 on both sides), and
+//! the blend of their fits misses that combination: the rig adds the shapes' displacements in
+//! the world, the blend adds their strains in the rest frame, and the lower lip has turned
+//! with the jaw in between (10.9 mm off the rig at the lower lip for identity000's jawOpen).
+//! So each slider is also fitted as the face performs it, in the style the basis was fitted
+//! for (`style`, the face's default), and its residual against the blend is kept:
+//!
+//! `log A(w, s) = Σⱼ rⱼ(w, s)·log Aⱼ + Σₖ wₖ|wₖ|·Δₖ`, `Δₖ = log Âₖ − Σⱼ rⱼ(eₖ, s₀)·log Aⱼ`,
+//!
+//! with `r(w, s)` the rig weights of the code (`StyleCode::shape_weights`), `Âₖ` slider `k`'s
+//! fit at weight one in the face's style `s₀`, and the jaw's `[θ; t]` the same way. The
+//! residual grows as `wₖ|wₖ|` (a cross term of two motions linear in `wₖ`:
+//! `residual_weight`). At the face's own style a slider at weight one gives its own fit `Âₖ`
+//! exactly; another style still changes the frame by what it changes in the rig's shapes; a
+//! style under which a slider is its own shape at weight one (the template's zero style) has
+//! no residual.
 
 use nalgebra::{Matrix3, SymmetricEigen};
 use rayon::prelude::*;
@@ -16,13 +34,13 @@ use crate::model::file::{self, FileError, Format};
 use crate::model::fit::{ActuationFitter, FitError, FitSettings};
 use crate::model::{FaceModel, TargetError, shape_target};
 use crate::rig::style::STYLE_SHAPES;
-use crate::rig::{ExpressionCode, FaceRig};
+use crate::rig::{ExpressionCode, FaceRig, StyleCode};
 use crate::sim::{RigidMotion, SymTensor};
 
 /// The file format of actuation bases; bump `version` when [`ActuationBasis`] changes shape.
 pub const BASIS_FORMAT: Format = Format {
     kind: "basis",
-    version: 1,
+    version: 2,
 };
 
 /// Log-actuation entries below this are left out (`A` within `5e-4` of `I` there: strains
@@ -58,6 +76,22 @@ pub struct ActuationBasis {
     /// Jaw parameters `[θ; t]` per shape.
     jaw: Vec<[f64; 6]>,
     pub fits: Vec<ShapeFit>,
+    /// The style the sliders' residuals were fitted in (the face's default).
+    pub style: StyleCode,
+    /// Per expression slider (code order), its residual `Δₖ` in `style` (module doc); `None`
+    /// where the style makes the slider its own shape at weight one.
+    residuals: Vec<Option<SliderResidual>>,
+}
+
+/// What the blend of the shapes' fits misses of one slider performed in the basis's style
+/// (module doc): `Δ = log Â − Σⱼ rⱼ·log Aⱼ` for the elements where it is not negligible, and
+/// the jaw's the same way.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+struct SliderResidual {
+    logs: Vec<(u32, [f32; 6])>,
+    jaw: [f64; 6],
+    /// How well the slider's own fit matched the rig in that style.
+    fit: ShapeFit,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -80,56 +114,145 @@ pub fn basis_shapes() -> Vec<&'static str> {
 }
 
 impl ActuationBasis {
-    /// Fits every basis shape at weight one on `face`; `progress(done, total, shape)`.
+    /// Fits every basis shape at weight one on `face`, then every slider at weight one in
+    /// `style` (the face's default) for its residual; `progress(done, total, what)`.
     pub fn fit(
         rig: &FaceRig,
         face: &FaceModel,
+        style: StyleCode,
         progress: &dyn Fn(usize, usize, &str),
     ) -> Result<Self, BasisError> {
         let fitter = ActuationFitter::new(face, FitSettings::default())?;
         let shapes = basis_shapes();
-        let (mut logs, mut jaw, mut fits) = (Vec::new(), Vec::new(), Vec::new());
-        for (k, &shape) in shapes.iter().enumerate() {
-            progress(k, shapes.len(), shape);
-            let target =
-                shape_target(rig, face, &[(shape, 1.0)]).map_err(|source| BasisError::Target {
-                    shape: shape.to_string(),
-                    source,
-                })?;
+        let sliders: Vec<_> = ExpressionCode::NAMES
+            .iter()
+            .map(|&name| {
+                let weights = style.shape_weights(&ExpressionCode::single(name, 1.0).unwrap());
+                let own = weights.len() == 1 && weights[0] == (name, 1.0);
+                (name, (!own).then_some(weights))
+            })
+            .collect();
+        let total = shapes.len() + sliders.iter().filter(|s| s.1.is_some()).count();
+        let fit_one = |what: String, weights: &[(&'static str, f64)]| {
+            let target = shape_target(rig, face, weights).map_err(|source| BasisError::Target {
+                shape: what.clone(),
+                source,
+            })?;
             let fit = fitter
                 .fit(&target, None)
                 .map_err(|source| BasisError::Fit {
-                    shape: shape.to_string(),
+                    shape: what.clone(),
                     source,
                 })?;
-            logs.push(
-                fit.tensors
-                    .iter()
-                    .map(log_tensor)
-                    .enumerate()
-                    .filter(|(_, l)| l.iter().any(|v| v.abs() > NEGLIGIBLE_LOG))
-                    .map(|(e, l)| (e as u32, l))
-                    .collect(),
-            );
-            jaw.push(fit.jaw.params());
-            fits.push(ShapeFit {
-                shape: shape.to_string(),
+            let logs: Vec<[f32; 6]> = fit.tensors.iter().map(log_tensor).collect();
+            let summary = ShapeFit {
+                shape: what,
                 skin_rms: fit.skin_rms,
                 skin_max: fit.skin_max,
                 jaw_rms: target.jaw.rms_error,
                 iterations: fit.iterations,
                 clamped: fit.clamped,
-            });
-        }
-        progress(shapes.len(), shapes.len(), "");
-        Ok(Self {
+            };
+            Ok::<_, BasisError>((logs, fit.jaw.params(), summary))
+        };
+        let mut basis = Self {
             face: face.name.clone(),
             element_count: face.mesh.element_count(),
             shapes: shapes.iter().map(|s| s.to_string()).collect(),
-            logs,
-            jaw,
-            fits,
-        })
+            logs: Vec::new(),
+            jaw: Vec::new(),
+            fits: Vec::new(),
+            style,
+            residuals: Vec::new(),
+        };
+        for (k, &shape) in shapes.iter().enumerate() {
+            progress(k, total, shape);
+            let (logs, jaw, fit) = fit_one(shape.to_string(), &[(shape, 1.0)])?;
+            basis
+                .logs
+                .push(sparse(logs.iter().map(|l| l.map(f64::from))));
+            basis.jaw.push(jaw);
+            basis.fits.push(fit);
+        }
+        let mut done = shapes.len();
+        for (name, weights) in sliders {
+            let Some(weights) = weights else {
+                basis.residuals.push(None);
+                continue;
+            };
+            progress(done, total, name);
+            done += 1;
+            let (own, own_jaw, fit) = fit_one(format!("{name} (own style)"), &weights)?;
+            let indexed = basis
+                .indexed(&weights)
+                .expect("the basis holds every shape a style names");
+            let (blend, blend_jaw) = basis.blend(&indexed, None);
+            let residual = own
+                .iter()
+                .zip(&blend)
+                .map(|(o, b)| std::array::from_fn(|i| f64::from(o[i]) - b[i]));
+            basis.residuals.push(Some(SliderResidual {
+                logs: sparse(residual),
+                jaw: std::array::from_fn(|i| own_jaw[i] - blend_jaw[i]),
+                fit,
+            }));
+        }
+        progress(total, total, "");
+        Ok(basis)
+    }
+
+    /// The sliders' own fits in the basis's style (those with a residual), as [`ShapeFit`]s.
+    pub fn own_style_fits(&self) -> impl Iterator<Item = &ShapeFit> {
+        self.residuals.iter().flatten().map(|r| &r.fit)
+    }
+
+    /// Rig shape weights by name → by basis index; the unknown name otherwise.
+    fn indexed(&self, weights: &[(&str, f64)]) -> Result<Vec<(usize, f64)>, String> {
+        weights
+            .iter()
+            .map(|&(name, w)| {
+                let k = self
+                    .shapes
+                    .iter()
+                    .position(|s| s == name)
+                    .ok_or_else(|| name.to_string())?;
+                Ok((k, w))
+            })
+            .collect()
+    }
+
+    /// `Σⱼ rⱼ·log Aⱼ` per element and `Σⱼ rⱼ·jawⱼ`, plus `Σₖ wₖ|wₖ|·Δₖ` for the slider weights
+    /// `expression` when given (module doc).
+    fn blend(
+        &self,
+        weights: &[(usize, f64)],
+        expression: Option<&ExpressionCode>,
+    ) -> (Vec<[f64; 6]>, [f64; 6]) {
+        let mut logs = vec![[0.0f64; 6]; self.element_count];
+        let mut jaw = [0.0; 6];
+        let mut add = |w: f64, entries: &[(u32, [f32; 6])], jaw_k: &[f64; 6]| {
+            for (e, log) in entries {
+                for (l, v) in logs[*e as usize].iter_mut().zip(log) {
+                    *l += w * f64::from(*v);
+                }
+            }
+            for (j, v) in jaw.iter_mut().zip(jaw_k) {
+                *j += w * v;
+            }
+        };
+        for &(k, w) in weights {
+            add(w, &self.logs[k], &self.jaw[k]);
+        }
+        if let Some(expression) = expression {
+            for (residual, &w) in self.residuals.iter().zip(&expression.0) {
+                if let Some(r) = residual
+                    && w != 0.0
+                {
+                    add(residual_weight(w), &r.logs, &r.jaw);
+                }
+            }
+        }
+        (logs, jaw)
     }
 
     pub fn save(&self, path: &std::path::Path) -> Result<(), FileError> {
@@ -148,28 +271,13 @@ impl ActuationModel for ActuationBasis {
 
     fn actuate(&self, codes: &Codes) -> Result<Actuation, DriveError> {
         codes.validate()?;
-        let weights: Vec<(usize, f64)> = codes
-            .style
-            .shape_weights(&codes.expression)
-            .into_iter()
-            .map(|(name, w)| {
-                let k = self.shapes.iter().position(|s| s == name).ok_or_else(|| {
-                    DriveError::BadTensor {
-                        element: 0,
-                        reason: format!("the basis has no shape '{name}'"),
-                    }
-                })?;
-                Ok((k, w))
-            })
-            .collect::<Result<_, DriveError>>()?;
-        let mut logs = vec![[0.0f64; 6]; self.element_count];
-        for &(k, w) in &weights {
-            for (e, log) in &self.logs[k] {
-                for (l, v) in logs[*e as usize].iter_mut().zip(log) {
-                    *l += w * *v as f64;
-                }
-            }
-        }
+        let weights = self
+            .indexed(&codes.style.shape_weights(&codes.expression))
+            .map_err(|name| DriveError::BadTensor {
+                element: 0,
+                reason: format!("the basis has no shape '{name}'"),
+            })?;
+        let (logs, jaw) = self.blend(&weights, Some(&codes.expression));
         let tensors: Vec<SymTensor> = logs
             .par_iter()
             .with_min_len(256)
@@ -181,17 +289,29 @@ impl ActuationModel for ActuationBasis {
                 reason: format!("{:?} (weights too extreme for f64)", tensors[e]),
             });
         }
-        let mut jaw = [0.0; 6];
-        for &(k, w) in &weights {
-            for (j, v) in jaw.iter_mut().zip(self.jaw[k]) {
-                *j += w * v;
-            }
-        }
         Ok(Actuation {
             tensors,
             jaw: RigidMotion::from_params(jaw),
         })
     }
+}
+
+/// How much of a slider's residual a slider weight `w` takes: `w·|w|`. What the blend misses
+/// is a cross term, the lip's own displacement turned by the jaw's rotation, and both grow
+/// with `w`: so it grows as `w²` (odd in `w`, as the rest of the blend, beyond the range).
+/// Exact at `w = 1`, where the residual was fitted; on held-out combinations it lies between
+/// a linear weight and none on every styled face (docs/performance/fidelity.md).
+fn residual_weight(w: f64) -> f64 {
+    w * w.abs()
+}
+
+/// `(element, log)` for the elements whose log is not negligible (above [`NEGLIGIBLE_LOG`]),
+/// rounded to f32.
+fn sparse(logs: impl Iterator<Item = [f64; 6]>) -> Vec<(u32, [f32; 6])> {
+    logs.enumerate()
+        .map(|(e, l)| (e as u32, l.map(|v| v as f32)))
+        .filter(|(_, l)| l.iter().any(|v| v.abs() > NEGLIGIBLE_LOG))
+        .collect()
 }
 
 /// `log A` of a symmetric positive definite tensor.
@@ -203,13 +323,14 @@ pub(crate) fn log_tensor(a: &SymTensor) -> [f32; 6] {
     SymTensor::from_matrix(&m).0.map(|v| v as f32)
 }
 
-/// `exp L` of a symmetric tensor; exactly the identity for `L = 0`.
 /// The principal stretches a blend of the basis may ask of an element. The fits stretch the
-/// elements at the mouth corners up to 11× (jawOpen, mouthClose) and squeeze none below the
-/// fit's 0.3; a blend of many shapes at far slider and style values would add their logs up
-/// to stretches of 10⁹ (far styles: `bench::extremes`), which no tissue takes and f64
-/// barely holds: the blend's stretches are clamped to this range.
-pub const BLENDED_STRETCH: (f64, f64) = (0.05, 20.0);
+/// elements at the mouth corners up to 11× on the neutral (mouthClose) and up to 32× in a
+/// styled face's own sliders (identity001's mouthClose; identity000's jawOpen 23×), and
+/// squeeze none below the fit's 0.3; a blend of many shapes at far slider and style values
+/// would add their logs up to stretches of 10⁹ (far styles: `bench::extremes`), which no
+/// tissue takes and f64 barely holds: the blend's stretches are clamped to this range, wide
+/// enough for every fit.
+pub const BLENDED_STRETCH: (f64, f64) = (0.05, 40.0);
 
 /// `exp` of a symmetric log with its eigenvalues clamped to `[ln lo, ln hi]`.
 fn exp_tensor_within(log: &[f64; 6], (lo, hi): (f64, f64)) -> SymTensor {
@@ -224,6 +345,7 @@ fn exp_tensor_within(log: &[f64; 6], (lo, hi): (f64, f64)) -> SymTensor {
     SymTensor::from_matrix(&m)
 }
 
+/// `exp L` of a symmetric tensor, unclamped; exactly the identity for `L = 0`.
 #[cfg(test)]
 pub(crate) fn exp_tensor(log: &[f64; 6]) -> SymTensor {
     if log.iter().all(|&v| v == 0.0) {
@@ -241,13 +363,17 @@ mod tests {
     use super::*;
     use crate::model::test_support::coarse_face;
     use crate::rig::StyleCode;
+    use crate::rig::style::identity_style;
     use crate::rig::test_support::{rig, temp_dir};
     use crate::sim::Quality;
     use std::sync::OnceLock;
 
     fn basis() -> &'static ActuationBasis {
         static BASIS: OnceLock<ActuationBasis> = OnceLock::new();
-        BASIS.get_or_init(|| ActuationBasis::fit(rig(), coarse_face(None), &|_, _, _| {}).unwrap())
+        BASIS.get_or_init(|| {
+            ActuationBasis::fit(rig(), coarse_face(None), StyleCode::NEUTRAL, &|_, _, _| {})
+                .unwrap()
+        })
     }
 
     #[test]
@@ -360,6 +486,54 @@ mod tests {
             let contact = stats.contact.expect("contact was on");
             assert_eq!(contact.new_crossings, 0);
         }
+    }
+
+    /// In the face's own style a slider at weight one is the slider's own fit to the rig
+    /// (identity000's jawOpen: jawOpen 1.24 with mouthLowerDown 0.5), not the blend of the
+    /// shapes' fits, which misses it (10.9 mm off at the lower lip on the sample face).
+    #[test]
+    fn a_slider_in_the_faces_own_style_gives_its_own_fit() {
+        let (face, style) = (coarse_face(Some(0)), identity_style(Some(0)));
+        let b = ActuationBasis::fit(rig(), face, style, &|_, _, _| {}).unwrap();
+        assert_eq!(b.own_style_fits().count(), ExpressionCode::LEN);
+        let codes = Codes {
+            expression: ExpressionCode::single("jawOpen", 1.0).unwrap(),
+            style,
+        };
+        let direct = ActuationFitter::new(face, FitSettings::default())
+            .unwrap()
+            .fit(&crate::model::target(rig(), face, &codes).unwrap(), None)
+            .unwrap();
+        let direct_logs: Vec<[f32; 6]> = direct.tensors.iter().map(log_tensor).collect();
+        let farthest = |logs: &[[f64; 6]]| {
+            logs.iter()
+                .zip(&direct_logs)
+                .flat_map(|(a, d)| a.iter().zip(d).map(|(a, d)| (a - f64::from(*d)).abs()))
+                .fold(0.0f64, f64::max)
+        };
+        let actuated = b.actuate(&codes).unwrap();
+        let actuated_logs: Vec<[f64; 6]> = actuated
+            .tensors
+            .iter()
+            .map(|t| log_tensor(t).map(f64::from))
+            .collect();
+        let jaw_gap = |jaw: [f64; 6]| {
+            jaw.iter()
+                .zip(direct.jaw.params())
+                .map(|(a, d)| (a - d).abs())
+                .fold(0.0, f64::max)
+        };
+        // Only the sparse storage's cut-offs and f32 rounding between them.
+        assert!(
+            farthest(&actuated_logs) < 2e-3,
+            "{}",
+            farthest(&actuated_logs)
+        );
+        assert!(jaw_gap(actuated.jaw.params()) < 1e-9);
+        let rig_weights = b.indexed(&style.shape_weights(&codes.expression)).unwrap();
+        let (blend, blend_jaw) = b.blend(&rig_weights, None);
+        assert!(farthest(&blend) > 0.1, "{}", farthest(&blend));
+        assert!(jaw_gap(blend_jaw) > 1e-3, "{}", jaw_gap(blend_jaw));
     }
 
     #[test]

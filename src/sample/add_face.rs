@@ -249,8 +249,13 @@ mod tests {
         })
         .unwrap();
         assert_eq!(rows, 60);
+        // The 24 shapes, then the sliders the face's style makes more than their own shape.
+        let fits = 24 + added.basis.own_style_fits().count();
+        assert!(fits > 24);
         assert!(
-            steps.iter().any(|s| s.contains("basis: 24/24")),
+            steps
+                .iter()
+                .any(|s| s.contains(&format!("basis: {fits}/{fits}"))),
             "{steps:?}"
         );
         assert_eq!(added.entry.name, "identity007");

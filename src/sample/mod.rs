@@ -394,7 +394,7 @@ fn build_one(
             name: name.clone(),
             source: Box::new(source),
         })?;
-    let basis = ActuationBasis::fit(rig, &model, &|done, total, shape| {
+    let basis = ActuationBasis::fit(rig, &model, style, &|done, total, shape| {
         progress(&format!("fitting {name}'s basis: {done}/{total} {shape}"))
     })
     .map_err(|source| SampleError::Basis {

@@ -167,12 +167,13 @@ const BASIS_COLUMNS: [&str; 3] = [
     "clamped elements",
 ];
 
-/// A fitted basis's worst shape: skin RMS / max and jaw RMS (mm), and its clamped elements.
+/// A fitted basis's worst fit (its shapes and its sliders in the face's own style): skin RMS
+/// / max and jaw RMS (mm), and its clamped elements over all fits.
 fn basis_cells(basis: &facesim::drive::basis::ActuationBasis) -> [String; 3] {
-    let worst = |of: fn(&facesim::drive::basis::ShapeFit) -> f64| {
-        basis.fits.iter().map(of).fold(0.0, f64::max)
-    };
-    let clamped: usize = basis.fits.iter().map(|f| f.clamped).sum();
+    let fits = || basis.fits.iter().chain(basis.own_style_fits());
+    let worst =
+        |of: fn(&facesim::drive::basis::ShapeFit) -> f64| fits().map(of).fold(0.0, f64::max);
+    let clamped: usize = fits().map(|f| f.clamped).sum();
     [
         format!(
             "≤ {:.3} / {:.3}",
