@@ -1,15 +1,21 @@
 //! Probe (issue 21): a slider at weight 1 (or `WEIGHT`) in each sample face's default style,
 //! posed (final, contact off, from rest) by four actuations and measured against the rig as
 //! `bench shapes` does:
-//! - the basis's log-Euclidean blend `exp(Σ wₖ·log Aₖ)` of shapes fitted at weight 1;
+//! - the face's basis (the blend `exp(Σ wₖ·log Aₖ)` of shapes fitted at weight 1 when the
+//!   probe was written; since the basis also fits each slider in the face's own style, the
+//!   same as the direct fit at weight 1);
 //! - a two-weight blend: shapes the style pushes past 1 interpolate `log A` between their
 //!   fits at 1 and at `W2` (default 1.5) instead of extrapolating the fit at 1;
 //! - jaw correctives: the blend plus `w_jawOpen·wₖ·(log A(jawOpen, k) − log A_jawOpen − log Aₖ)`
 //!   for every shape `k` posed with jawOpen, each pair fitted at weights (1, 1);
 //! - an actuation fitted to the styled target directly (the per-code upper bound).
 //!
+//! For the direct fit it also prints the worst vertex at the fit's own positions (what the
+//! bindings alone leave) and how far forward solves of the fitted actuation land from the
+//! fit, from rest and along a path of intermediate actuations.
+//!
 //! `cargo run --release -p facesim --example styled_fit [SHAPE]`, with `FACE=NAME` to measure
-//! one face.
+//! one face, `MIN_STRETCH` for the fit's clamp (default 0.3) and `TOL` for the solves'.
 use facesim::bench::shapes::{MeasuredFace, measure};
 use facesim::drive::{Actuation, ActuationModel, Codes, DriveError};
 use facesim::model::fit::{ActuationFitter, FitSettings};
@@ -61,6 +67,10 @@ fn main() {
     )];
     let settings = SolveSettings {
         contact: false,
+        tolerance: std::env::var("TOL")
+            .ok()
+            .map_or(Quality::Final.settings().tolerance, |v| v.parse().unwrap()),
+        max_iterations: 5000,
         ..Quality::Final.settings()
     };
     for face in sample
@@ -72,7 +82,13 @@ fn main() {
             expression: code[0].1,
             style: face.style,
         };
-        let fitter = ActuationFitter::new(&face.model, FitSettings::default()).unwrap();
+        let fit_settings = FitSettings {
+            min_stretch: std::env::var("MIN_STRETCH")
+                .ok()
+                .map_or(FitSettings::default().min_stretch, |v| v.parse().unwrap()),
+            ..FitSettings::default()
+        };
+        let fitter = ActuationFitter::new(&face.model, fit_settings).unwrap();
         let n = face.model.mesh.element_count();
         let weights = face.style.shape_weights(&codes.expression);
         println!("{} weights {:?}", face.name, weights);
@@ -182,7 +198,7 @@ fn main() {
             n,
         );
         for (label, actuation) in [
-            ("basis blend", face.actuation.as_ref()),
+            ("basis", face.actuation.as_ref()),
             ("two-weight", &two as &dyn ActuationModel),
             ("jaw correctives", &corrective),
             ("direct fit", &direct),
@@ -203,6 +219,64 @@ fn main() {
                 r.lining_mean_mm,
                 r.termination
             );
+            if label == "direct fit" {
+                // The same render vertex at the fit's own positions (no forward solve): what
+                // the bindings alone leave.
+                let at_fit = face
+                    .model
+                    .render_positions(&fit.positions, &direct.0.bones());
+                let i = face
+                    .model
+                    .render
+                    .rig_vertices
+                    .iter()
+                    .position(|&v| v == r.skin_worst_vertex)
+                    .unwrap();
+                println!(
+                    "{} {shape}@{weight} the fit's own positions: {:.2} mm at rig vertex {} ({} clamped elements)",
+                    face.name,
+                    10.0 * (at_fit[i] - goal.render[i]).norm(),
+                    r.skin_worst_vertex,
+                    fit.clamped
+                );
+                // Forward solves of the fitted actuation: from rest, and along a path of
+                // intermediate actuations exp(t·log Â), t = 0.25 … 1, each from the last.
+                let sim = face.model.simulator().unwrap();
+                let bones = direct.0.bones();
+                let logs: Vec<Matrix3<f64>> = fit.tensors.iter().map(log_m).collect();
+                let gap = |x: &[f64]| {
+                    x.chunks_exact(3)
+                        .zip(fit.positions.chunks_exact(3))
+                        .map(|(a, b)| {
+                            10.0 * ((a[0] - b[0]).powi(2)
+                                + (a[1] - b[1]).powi(2)
+                                + (a[2] - b[2]).powi(2))
+                            .sqrt()
+                        })
+                        .fold(0.0, f64::max)
+                };
+                let mut state = sim.rest_state();
+                let stats = sim
+                    .solve(&fit.tensors, &bones, &mut state, &settings)
+                    .unwrap();
+                println!(
+                    "  from rest: {} iterations, farthest simulation vertex from the fit {:.2} mm",
+                    stats.iterations,
+                    gap(state.flat_positions())
+                );
+                let mut state = sim.rest_state();
+                for t in [0.25, 0.5, 0.75, 1.0] {
+                    let tensors: Vec<SymTensor> = logs.iter().map(|l| exp_m(&(l * t))).collect();
+                    let jaw = RigidMotion::from_params(fit.jaw.params().map(|p| p * t));
+                    let a = Actuation { tensors, jaw };
+                    sim.solve(&a.tensors, &a.bones(), &mut state, &settings)
+                        .unwrap();
+                }
+                println!(
+                    "  along the path: farthest simulation vertex from the fit {:.2} mm",
+                    gap(state.flat_positions())
+                );
+            }
         }
     }
 }
