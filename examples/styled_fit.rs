@@ -222,9 +222,8 @@ fn main() {
             if label == "direct fit" {
                 // The same render vertex at the fit's own positions (no forward solve): what
                 // the bindings alone leave.
-                let at_fit = face
-                    .model
-                    .render_positions(&fit.positions, &direct.0.bones());
+                let bones = direct.0.bones();
+                let at_fit = face.model.render_positions(&fit.positions, &bones);
                 let i = face
                     .model
                     .render
@@ -242,7 +241,6 @@ fn main() {
                 // Forward solves of the fitted actuation: from rest, and along a path of
                 // intermediate actuations exp(t·log Â), t = 0.25 … 1, each from the last.
                 let sim = face.model.simulator().unwrap();
-                let bones = direct.0.bones();
                 let logs: Vec<Matrix3<f64>> = fit.tensors.iter().map(log_m).collect();
                 let gap = |x: &[f64]| {
                     x.chunks_exact(3)

@@ -144,7 +144,11 @@ impl ActuationBasis {
                     shape: what.clone(),
                     source,
                 })?;
-            let logs: Vec<[f32; 6]> = fit.tensors.iter().map(log_tensor).collect();
+            let logs: Vec<[f64; 6]> = fit
+                .tensors
+                .iter()
+                .map(|t| log_tensor(t).map(f64::from))
+                .collect();
             let summary = ShapeFit {
                 shape: what,
                 skin_rms: fit.skin_rms,
@@ -168,9 +172,7 @@ impl ActuationBasis {
         for (k, &shape) in shapes.iter().enumerate() {
             progress(k, total, shape);
             let (logs, jaw, fit) = fit_one(shape.to_string(), &[(shape, 1.0)])?;
-            basis
-                .logs
-                .push(sparse(logs.iter().map(|l| l.map(f64::from))));
+            basis.logs.push(sparse(logs.into_iter()));
             basis.jaw.push(jaw);
             basis.fits.push(fit);
         }
@@ -190,7 +192,7 @@ impl ActuationBasis {
             let residual = own
                 .iter()
                 .zip(&blend)
-                .map(|(o, b)| std::array::from_fn(|i| f64::from(o[i]) - b[i]));
+                .map(|(o, b)| std::array::from_fn(|i| o[i] - b[i]));
             basis.residuals.push(Some(SliderResidual {
                 logs: sparse(residual),
                 jaw: std::array::from_fn(|i| own_jaw[i] - blend_jaw[i]),
