@@ -479,6 +479,9 @@ fn bench_shapes_measures_one_slider_against_the_rig_and_refuses_unknown_names() 
         json.to_str().unwrap(),
     ]));
     assert!(table.contains("| neutral | jawOpen | off |"), "{table}");
+    // The per-face summary follows, one line per face and contact setting.
+    assert!(table.contains("| neutral | off | 1 of 1 |"), "{table}");
+    assert!(table.contains("| identity000 | off | 1 of 1 |"), "{table}");
     let rows: serde_json::Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
     let _ = std::fs::remove_file(&json);
     let rows = rows.as_array().unwrap();

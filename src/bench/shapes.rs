@@ -9,7 +9,9 @@
 //! - crossings of the whole render surface ([`CrossingAudit`], independent of the contact
 //!   solver's surface), and those of the rig's own target (where the rig itself presses the
 //!   lips through each other, the target is not physical and contact decides);
-//! - whether the solve converged, its iterations, residual and time.
+//! - whether the solve converged, its iterations, residual and time;
+//! - and per face, the summary of those rows ([`summary`]): the shapes that converged, the
+//!   worst skin and lining over them, the shapes above the 2 mm target, the crossings by pieces.
 
 use std::time::Instant;
 
@@ -226,4 +228,228 @@ pub fn table(rows: &[ShapeRow]) -> String {
         ]);
     }
     t.to_string()
+}
+
+/// One face's rows at one contact setting, summed up (see [`summary`]).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct FaceSummary {
+    pub face: String,
+    pub contact: bool,
+    pub shapes: usize,
+    pub converged: usize,
+    /// The largest skin maximum over the converged shapes the rig poses physically (mouthClose
+    /// aside: the rig presses the lips through each other there, contact decides), and its shape.
+    pub skin_max_mm: f64,
+    pub skin_worst_shape: String,
+    /// Those shapes with a skin maximum above [`SKIN_MAX_TARGET_MM`], with it (mm).
+    pub skin_over_target: Vec<(String, f64)>,
+    /// The largest lining mean over the converged shapes (mm), and its shape.
+    pub lining_mean_mm: f64,
+    pub lining_worst_shape: String,
+    /// Shapes whose pose crosses anywhere, their crossing pairs, and the pairs by pieces.
+    pub crossing_shapes: usize,
+    pub crossings: usize,
+    pub crossing_pieces: Vec<(String, usize)>,
+}
+
+/// The skin maximum the mouth's fidelity aims at (mm, per vertex against the rig).
+pub const SKIN_MAX_TARGET_MM: f64 = 2.0;
+
+/// Per face and contact setting, in the rows' order: how many shapes converged, the worst skin
+/// and lining over them (leading with maxima), and the crossings by pieces.
+pub fn summary(rows: &[ShapeRow]) -> Vec<FaceSummary> {
+    let unphysical =
+        |r: &ShapeRow| crate::model::bindings::UNPHYSICAL_SHAPES.contains(&r.code.as_str());
+    let mut out: Vec<FaceSummary> = Vec::new();
+    for r in rows {
+        let index = match out
+            .iter()
+            .position(|s| s.face == r.face && s.contact == r.contact)
+        {
+            Some(i) => i,
+            None => {
+                out.push(FaceSummary {
+                    face: r.face.clone(),
+                    contact: r.contact,
+                    shapes: 0,
+                    converged: 0,
+                    skin_max_mm: 0.0,
+                    skin_worst_shape: String::new(),
+                    skin_over_target: Vec::new(),
+                    lining_mean_mm: 0.0,
+                    lining_worst_shape: String::new(),
+                    crossing_shapes: 0,
+                    crossings: 0,
+                    crossing_pieces: Vec::new(),
+                });
+                out.len() - 1
+            }
+        };
+        let s = &mut out[index];
+        s.shapes += 1;
+        s.crossing_shapes += usize::from(r.crossings > 0);
+        s.crossings += r.crossings;
+        for (piece, pairs) in &r.crossing_pieces {
+            match s.crossing_pieces.iter_mut().find(|(p, _)| p == piece) {
+                Some(entry) => entry.1 += pairs,
+                None => s.crossing_pieces.push((piece.clone(), *pairs)),
+            }
+        }
+        if !r.converged() {
+            continue;
+        }
+        s.converged += 1;
+        if r.lining_mean_mm > s.lining_mean_mm {
+            (s.lining_mean_mm, s.lining_worst_shape) = (r.lining_mean_mm, r.code.clone());
+        }
+        if unphysical(r) {
+            continue;
+        }
+        if r.skin_max_mm > s.skin_max_mm {
+            (s.skin_max_mm, s.skin_worst_shape) = (r.skin_max_mm, r.code.clone());
+        }
+        if r.skin_max_mm > SKIN_MAX_TARGET_MM {
+            s.skin_over_target.push((r.code.clone(), r.skin_max_mm));
+        }
+    }
+    for s in &mut out {
+        s.crossing_pieces
+            .sort_by(|a, b| b.1.cmp(&a.1).then(a.0.cmp(&b.0)));
+    }
+    out
+}
+
+/// [`summary`] as a Markdown table.
+pub fn summary_table(rows: &[ShapeRow]) -> String {
+    let mut t = Table::new(
+        &[
+            "face",
+            "contact",
+            "converged",
+            "skin max (mm), worst shape",
+            "shapes over 2 mm",
+            "lining mean, worst (mm)",
+            "shapes crossing (pairs)",
+            "crossings by pieces",
+        ],
+        "llrlllrl",
+    );
+    for s in summary(rows) {
+        let list = |items: Vec<String>| {
+            if items.is_empty() {
+                "none".to_string()
+            } else {
+                items.join(", ")
+            }
+        };
+        t.row([
+            s.face,
+            if s.contact { "on" } else { "off" }.to_string(),
+            format!("{} of {}", s.converged, s.shapes),
+            format!("{:.2}, {}", s.skin_max_mm, s.skin_worst_shape),
+            list(
+                s.skin_over_target
+                    .iter()
+                    .map(|(c, m)| format!("{c} {m:.1}"))
+                    .collect(),
+            ),
+            format!("{:.2}, {}", s.lining_mean_mm, s.lining_worst_shape),
+            format!("{} ({})", s.crossing_shapes, s.crossings),
+            list(
+                s.crossing_pieces
+                    .iter()
+                    .map(|(p, n)| format!("{p} {n}"))
+                    .collect(),
+            ),
+        ]);
+    }
+    t.to_string()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn row(face: &str, code: &str, skin: f64, lining: f64, converged: bool) -> ShapeRow {
+        ShapeRow {
+            face: face.into(),
+            code: code.into(),
+            contact: true,
+            termination: Some(if converged {
+                Termination::Converged
+            } else {
+                Termination::IterationCap
+            }),
+            error: None,
+            iterations: 10,
+            residual: 0.0,
+            ms: 1.0,
+            skin_max_mm: skin,
+            skin_p95_mm: skin / 2.0,
+            skin_mean_mm: skin / 4.0,
+            skin_worst_vertex: 7,
+            lining_mean_mm: lining,
+            lining_max_mm: lining * 3.0,
+            crossings: 0,
+            crossing_pieces: Vec::new(),
+            rig_crossings: 0,
+            rig_crossing_pieces: Vec::new(),
+        }
+    }
+
+    /// The summary leads with the worst converged shape, leaves mouthClose's skin out (the
+    /// rig presses the lips through each other there), lists the shapes over the target and
+    /// sums the crossings by pieces, per face.
+    #[test]
+    fn the_summary_leads_with_the_worst_converged_physical_shape() {
+        let mut crossing = row("a", "jawOpen", 3.0, 1.2, true);
+        crossing.crossings = 5;
+        crossing.crossing_pieces = vec![
+            ("lower teeth / mouth socket".into(), 4),
+            ("face skin / face skin".into(), 1),
+        ];
+        let mut smile = row("a", "mouthSmile_L", 1.5, 0.4, true);
+        smile.crossings = 2;
+        smile.crossing_pieces = vec![("lower teeth / mouth socket".into(), 2)];
+        let rows = vec![
+            crossing,
+            smile,
+            row("a", "mouthClose", 9.0, 2.0, true),
+            row("a", "mouthPucker", 12.0, 3.0, false),
+            row("b", "jawOpen", 1.0, 0.3, true),
+        ];
+        let s = summary(&rows);
+        assert_eq!(s.len(), 2);
+        let a = &s[0];
+        assert_eq!((a.shapes, a.converged), (4, 3));
+        assert_eq!(
+            (a.skin_max_mm, a.skin_worst_shape.as_str()),
+            (3.0, "jawOpen")
+        );
+        assert_eq!(a.skin_over_target, vec![("jawOpen".to_string(), 3.0)]);
+        assert_eq!(
+            (a.lining_mean_mm, a.lining_worst_shape.as_str()),
+            (2.0, "mouthClose")
+        );
+        assert_eq!((a.crossing_shapes, a.crossings), (2, 7));
+        assert_eq!(
+            a.crossing_pieces,
+            vec![
+                ("lower teeth / mouth socket".to_string(), 6),
+                ("face skin / face skin".to_string(), 1)
+            ]
+        );
+        assert!(s[1].skin_over_target.is_empty());
+        let table = summary_table(&rows);
+        assert!(
+            table.contains(
+                "| a | on | 3 of 4 | 3.00, jawOpen | jawOpen 3.0 | 2.00, mouthClose | 2 (7) |"
+            ),
+            "{table}"
+        );
+        assert!(
+            table.contains("| b | on | 1 of 1 | 1.00, jawOpen | none |"),
+            "{table}"
+        );
+    }
 }

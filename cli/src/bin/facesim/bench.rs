@@ -461,6 +461,8 @@ pub fn bench_shapes(args: &ShapesArgs) -> Result<()> {
         }
     }
     print!("{}", shapes::table(&rows));
+    println!("\nPer face (skin over the converged shapes, mouthClose aside):\n");
+    print!("{}", shapes::summary_table(&rows));
     if let Some(path) = &args.json {
         std::fs::write(path, serde_json::to_string_pretty(&rows)?)
             .with_context(|| format!("writing {}", path.display()))?;
