@@ -27,11 +27,6 @@
 //!    move it there); the bones carry it. What remains is the
 //!    importer's report ([`BindingReport`]), and a skin vertex still off by more than
 //!    [`BindingSettings::max_skin_error`] is a build error.
-//! 3. **Chosen again by the solves** ([`rebind_to_solves`], once the face has actuations: the
-//!    sample's basis): the passive fits are where the tissue *can* go, not where the
-//!    actuations' forward solves put it (on identity001's jawOpen 4.9 mm apart). Each embedded
-//!    skin vertex takes, among its element and the elements sharing a vertex with it, the
-//!    binding closest to the rig over the fits and the solves together.
 
 use nalgebra::{Point3, Vector3};
 use serde::{Deserialize, Serialize};
@@ -597,91 +592,6 @@ pub(super) fn fit_to_rig(
 /// Barycentric weights beyond this absolute sum extrapolate too far to be a candidate.
 const MAX_WEIGHT_SUM: f64 = 4.0;
 
-/// A forward solve of one code on the face: the simulation's positions (interleaved, cm), the
-/// bones' poses and the rig's target for the render surface.
-pub struct SolvedShape {
-    pub positions: Vec<f64>,
-    pub bones: BonePose,
-    pub target: Vec<Point3<f64>>,
-}
-
-/// [`rebind_to_solves`] minimizes `Σₖ eₖ⁴` over the shapes `k` (`eₖ`: the vertex's distance
-/// from the rig): close to the largest distance, which it leads with, without trading every
-/// other shape for a hundredth of a millimetre on the worst one. Measured on the sample
-/// (`bench shapes --contact off`, single sliders, per face): the largest distance alone gave
-/// worst skin errors lower by up to 0.11 mm on two faces but the skin p95 up to 13 % worse on
-/// three; `Σ eₖ⁴` keeps the p95 within 1.5 % or better on every face.
-const REBIND_POWER: i32 = 4;
-
-/// Chooses the embedded skin's bindings again, against `solves` as well as the passive fits
-/// (step 3 of the module doc): among its element and the elements sharing a vertex with it
-/// (one side of the mouth slit: no element spans it), the binding with the smallest
-/// `Σₖ eₖ⁴` ([`REBIND_POWER`]). Returns how many vertices changed.
-pub fn rebind_to_solves(
-    face: &mut FaceModel,
-    rig: &FaceRig,
-    solves: Vec<SolvedShape>,
-) -> Result<usize, BindingError> {
-    use rayon::prelude::*;
-    let mut fits = ShapeFits::new(rig, face)?;
-    for solve in solves {
-        fits.names.push("forward solve");
-        fits.positions.push(solve.positions);
-        fits.bones.push(solve.bones);
-        fits.targets.push(solve.target);
-    }
-    let mesh = &face.mesh;
-    let mut incident: Vec<Vec<u32>> = vec![Vec::new(); mesh.vertex_count()];
-    for (e, t) in mesh.tets.iter().enumerate() {
-        for &v in t {
-            incident[v as usize].push(e as u32);
-        }
-    }
-    let render = &face.render;
-    let score = |errors: Vec<f64>| errors.iter().map(|e| e.powi(REBIND_POWER)).sum::<f64>();
-    let chosen: Vec<Option<Binding>> = (0..render.rest.len())
-        .into_par_iter()
-        .map(|i| {
-            let Binding::Embedded { element, .. } = render.bindings[i] else {
-                return None;
-            };
-            if Region::of_vertex(render.rig_vertices[i] as usize) != Some(Region::FaceSkin) {
-                return None;
-            }
-            let p = render.rest[i];
-            let mut near: Vec<u32> = mesh.tets[element as usize]
-                .iter()
-                .flat_map(|&v| incident[v as usize].iter().copied())
-                .collect();
-            near.sort_unstable();
-            near.dedup();
-            let mut candidates = vec![render.bindings[i]];
-            for e in near {
-                let weights = barycentric(mesh, e as usize, &p);
-                if weights.iter().map(|w| w.abs()).sum::<f64>() <= MAX_WEIGHT_SUM {
-                    candidates.push(Binding::Embedded {
-                        element: e,
-                        weights,
-                    });
-                }
-            }
-            candidates
-                .into_iter()
-                .map(|b| (b, score(fits.errors(face, i, &b))))
-                .min_by(|a, b| a.1.total_cmp(&b.1))
-                .map(|(b, _)| b)
-        })
-        .collect();
-    let mut changed = 0;
-    for (i, binding) in chosen.into_iter().enumerate() {
-        if let Some(binding) = binding {
-            changed += usize::from(binding != face.render.bindings[i]);
-            face.render.bindings[i] = binding;
-        }
-    }
-    Ok(changed)
-}
-
 /// The counts of each kind of binding and the farthest embedded vertex.
 fn count_bindings(face: &FaceModel, report: &mut BindingReport) {
     let bindings = &face.render.bindings;
@@ -714,76 +624,6 @@ mod tests {
     use crate::geometry::embedding::interpolate;
     use crate::model::test_support::coarse_face;
     use crate::rig::test_support::rig;
-
-    /// Chosen again against a forward solve, a skin vertex takes the element that puts it
-    /// where the solve's target is: the target is moved to where a neighbouring element
-    /// carries the vertex when the tissue is bent (3 mm waves), more than 0.1 mm from where its
-    /// own element carries it.
-    #[test]
-    fn rebinding_to_a_solve_takes_the_element_that_follows_it() {
-        let mut face = coarse_face(None).clone();
-        let x: Vec<f64> = face
-            .mesh
-            .vertices
-            .iter()
-            .flat_map(|p| {
-                let bend = |t: f64| 0.3 * (2.0 * t).sin();
-                [p.x + bend(p.y), p.y + bend(p.z), p.z + bend(p.x)]
-            })
-            .collect();
-        let bones = BonePose::default();
-        let mut target = face.render_positions(&x, &bones);
-        let mesh = &face.mesh;
-        // A moving skin vertex inside its element, and a neighbouring element that carries it
-        // elsewhere under the stretch.
-        let (i, other) = (0..face.render.rest.len())
-            .find_map(|i| {
-                let v = face.render.rig_vertices[i] as usize;
-                let Binding::Embedded { element, weights } = face.render.bindings[i] else {
-                    return None;
-                };
-                let inside = weights.iter().all(|&w| w > 0.05);
-                if Region::of_vertex(v) != Some(Region::FaceSkin) || !inside {
-                    return None;
-                }
-                let p = face.render.rest[i];
-                let own = face.bound_position(&face.render.bindings[i], &p, &x, &bones);
-                (0..mesh.tets.len() as u32)
-                    .filter(|&e| {
-                        e != element
-                            && mesh.tets[e as usize]
-                                .iter()
-                                .any(|v| mesh.tets[element as usize].contains(v))
-                    })
-                    .map(|e| Binding::Embedded {
-                        element: e,
-                        weights: barycentric(mesh, e as usize, &p),
-                    })
-                    .find(|b| {
-                        let lever: f64 = match b {
-                            Binding::Embedded { weights, .. } => {
-                                weights.iter().map(|w| w.abs()).sum()
-                            }
-                            _ => unreachable!(),
-                        };
-                        lever < 2.0 && (face.bound_position(b, &p, &x, &bones) - own).norm() > 0.01
-                    })
-                    .map(|b| (i, b))
-            })
-            .expect("a skin vertex with a neighbouring element that carries it elsewhere");
-        target[i] = face.bound_position(&other, &face.render.rest[i], &x, &bones);
-        // The solve is weighted like the fits' shapes; repeat it so it outweighs them.
-        let solves = (0..40)
-            .map(|_| SolvedShape {
-                positions: x.clone(),
-                bones,
-                target: target.clone(),
-            })
-            .collect();
-        let changed = rebind_to_solves(&mut face, rig(), solves).unwrap();
-        assert!(changed >= 1);
-        assert_eq!(face.render.bindings[i], other);
-    }
 
     /// A skin vertex's rig index and its errors with its binding and the nearest element's (cm).
     type SkinError = (u32, f64, f64);

@@ -116,8 +116,6 @@ pub enum SampleError {
     },
     #[error("fitting the actuation basis of {name}: {source}")]
     Basis { name: String, source: BasisError },
-    #[error("binding {name}'s skin to its basis's solves: {reason}")]
-    Rebind { name: String, reason: String },
     #[error(
         "{source}; a face is added from a neutral on the rig's topology: the vertices and \
          faces of the rig's neutral ({}), in its order",
@@ -403,12 +401,6 @@ fn build_one(
         name: name.clone(),
         source,
     })?;
-    let mut model = model;
-    progress(&format!("binding {name}'s skin to its basis's solves"));
-    rebind_to_basis(rig, &mut model, &basis, style).map_err(|reason| SampleError::Rebind {
-        name: name.clone(),
-        reason,
-    })?;
     let stem = format!("{name}-{}", lod.name());
     Ok(BuiltFace {
         entry: ManifestFace {
@@ -423,46 +415,6 @@ fn build_one(
         model,
         basis,
     })
-}
-
-/// Chooses `model`'s skin bindings again against the forward solves of `basis`, each slider
-/// alone at weight 1 in `style` at the final preset without contact (mouthClose aside: the rig
-/// presses the lips through each other there); see [`crate::model::bindings::rebind_to_solves`].
-fn rebind_to_basis(
-    rig: &FaceRig,
-    model: &mut FaceModel,
-    basis: &ActuationBasis,
-    style: StyleCode,
-) -> Result<usize, String> {
-    use crate::model::bindings::{SolvedShape, UNPHYSICAL_SHAPES, rebind_to_solves};
-    use crate::rig::ExpressionCode;
-    let sim = model.simulator().map_err(|e| e.to_string())?;
-    let settings = crate::sim::SolveSettings {
-        contact: false,
-        ..crate::sim::Quality::Final.settings()
-    };
-    let mut solves = Vec::new();
-    for name in ExpressionCode::NAMES {
-        if UNPHYSICAL_SHAPES.contains(&name) {
-            continue;
-        }
-        let Some(expression) = ExpressionCode::single(name, 1.0) else {
-            continue;
-        };
-        let codes = crate::drive::Codes { expression, style };
-        let actuation = basis.actuate(&codes).map_err(|e| e.to_string())?;
-        let bones = actuation.bones();
-        let mut state = sim.rest_state();
-        sim.solve(&actuation.tensors, &bones, &mut state, &settings)
-            .map_err(|e| format!("solving {name}: {e}"))?;
-        let target = crate::model::target(rig, model, &codes).map_err(|e| e.to_string())?;
-        solves.push(SolvedShape {
-            positions: state.flat_positions().to_vec(),
-            bones,
-            target: target.render,
-        });
-    }
-    rebind_to_solves(model, rig, solves).map_err(|e| e.to_string())
 }
 
 /// Builds a sample into `out`: faces, bases, manifest and the rig's licence notice.
