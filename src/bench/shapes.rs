@@ -321,27 +321,28 @@ pub fn summary(rows: &[ShapeRow]) -> Vec<FaceSummary> {
 
 /// [`summary`] as a Markdown table.
 pub fn summary_table(rows: &[ShapeRow]) -> String {
+    let over_target = format!("shapes over {SKIN_MAX_TARGET_MM} mm");
     let mut t = Table::new(
         &[
             "face",
             "contact",
             "converged",
             "skin max (mm), worst shape",
-            "shapes over 2 mm",
+            &over_target,
             "lining mean, worst (mm)",
             "shapes crossing (pairs)",
             "crossings by pieces",
         ],
         "llrlllrl",
     );
+    let list = |items: Vec<String>| {
+        if items.is_empty() {
+            "none".to_string()
+        } else {
+            items.join(", ")
+        }
+    };
     for s in summary(rows) {
-        let list = |items: Vec<String>| {
-            if items.is_empty() {
-                "none".to_string()
-            } else {
-                items.join(", ")
-            }
-        };
         t.row([
             s.face,
             if s.contact { "on" } else { "off" }.to_string(),
@@ -441,6 +442,7 @@ mod tests {
         );
         assert!(s[1].skin_over_target.is_empty());
         let table = summary_table(&rows);
+        assert!(table.contains("| shapes over 2 mm |"), "{table}");
         assert!(
             table.contains(
                 "| a | on | 3 of 4 | 3.00, jawOpen | jawOpen 3.0 | 2.00, mouthClose | 2 (7) |"
