@@ -209,7 +209,7 @@ fn main() {
                 actuation,
                 style: face.style,
             };
-            let r = &measure(&rig, &measured, &code, &settings, &|_, _| {}).unwrap()[0];
+            let r = &measure(&rig, &measured, &code, &settings, false, &|_, _| {}).unwrap()[0];
             println!(
                 "{} {shape}@{weight} {label}: skin max {:.2} mm (rig vertex {}), p95 {:.2}; lining mean {:.2}; {:?}",
                 face.name,

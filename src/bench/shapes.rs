@@ -10,6 +10,8 @@
 //!   solver's surface), and those of the rig's own target (where the rig itself presses the
 //!   lips through each other, the target is not physical and contact decides);
 //! - whether the solve converged, its iterations, residual and time;
+//! - where frames get it (final with contact, [`crate::model::deep_lining::runs_at`]), the
+//!   deep lining's contact pass, as the editor and exports apply it;
 //! - and per face, the summary of those rows ([`summary`]): the shapes that converged, the
 //!   worst skin and lining over them, the shapes above the 2 mm target, the crossings by pieces.
 
@@ -21,6 +23,7 @@ use crate::contact::surface::FaceContact;
 use crate::drive::{ActuationModel, Codes};
 use crate::model::audit::CrossingAudit;
 use crate::model::contact_region::FaceContactSettings;
+use crate::model::deep_lining::{DeepLining, DeepLiningStats, LiningMemory};
 use crate::model::{FaceModel, target};
 use crate::rig::{ExpressionCode, FaceRig, Region};
 use crate::sim::{SimError, SolveSettings, Termination};
@@ -51,11 +54,16 @@ pub struct ShapeRow {
     /// New crossings of the rig's own target for the code.
     pub rig_crossings: usize,
     pub rig_crossing_pieces: Vec<(String, usize)>,
+    /// The deep lining's contact pass, where it ran.
+    #[serde(default)]
+    pub lining: Option<DeepLiningStats>,
 }
 
 impl ShapeRow {
+    /// The solve reached its tolerance, and so did the lining's pass where it ran.
     pub fn converged(&self) -> bool {
         self.termination == Some(Termination::Converged)
+            && self.lining.as_ref().is_none_or(|l| l.converged)
     }
 }
 
@@ -76,20 +84,29 @@ pub struct MeasuredFace<'a> {
 }
 
 /// Poses every code on `face` from rest with `settings` (contact as `settings.contact`) and
-/// measures it against `rig` (module doc). `progress(done, total)` after each.
+/// measures it against `rig` (module doc); `lining`: with the deep lining's contact pass, as
+/// frames get it at the final preset with contact ([`deep_lining::runs_at`]).
+/// `progress(done, total)` after each.
 pub fn measure(
     rig: &FaceRig,
     face: &MeasuredFace,
     codes: &[(String, ExpressionCode)],
     settings: &SolveSettings,
+    lining: bool,
     progress: &dyn Fn(usize, usize),
 ) -> Result<Vec<ShapeRow>, SimError> {
     let model = face.model;
     let mut sim = model.simulator()?;
+    let mut pass = None;
     if settings.contact {
-        let contact = FaceContact::new(model, &FaceContactSettings::default())
+        let surfaces = FaceContact::new(model, &FaceContactSettings::default())
             .map_err(|e| SimError::Setup(format!("contact surfaces of {}: {e}", face.name)))?;
-        sim.set_contact(contact)?;
+        if lining {
+            pass = Some(DeepLining::new(model, &surfaces).map_err(|e| {
+                SimError::Setup(format!("the deep lining's contact of {}: {e}", face.name))
+            })?);
+        }
+        sim.set_contact(surfaces)?;
     }
     let audit = CrossingAudit::new(model);
     let region: Vec<Option<Region>> = model
@@ -126,6 +143,7 @@ pub fn measure(
             crossing_pieces: Vec::new(),
             rig_crossings: 0,
             rig_crossing_pieces: Vec::new(),
+            lining: None,
         };
         let rig_crossings = audit.audit(model, &goal.render);
         (row.rig_crossings, row.rig_crossing_pieces) =
@@ -144,7 +162,11 @@ pub fn measure(
                 row.termination = Some(stats.termination);
                 row.iterations = stats.iterations;
                 row.residual = stats.residual;
-                let posed = model.render_positions(state.flat_positions(), &bones);
+                let mut posed = model.render_positions(state.flat_positions(), &bones);
+                // Each code is posed from rest, and so is its lining.
+                row.lining = pass
+                    .as_ref()
+                    .map(|l| l.apply(&mut posed, &mut LiningMemory::default()));
                 let distances: Vec<f64> = posed
                     .iter()
                     .zip(&goal.render)
@@ -209,6 +231,18 @@ pub fn table(rows: &[ShapeRow]) -> String {
             (Some(t), _) => format!("**no ({t:?}, residual {:.1e})**", r.residual),
             (None, Some(e)) => format!("**failed: {e}**"),
             (None, None) => "?".to_string(),
+        };
+        let solve = match &r.lining {
+            Some(l) if l.error.is_some() => {
+                format!(
+                    "**lining pass failed: {}**",
+                    l.error.as_deref().unwrap_or("")
+                )
+            }
+            Some(l) if !l.converged => {
+                format!("**lining pass stopped short ({} steps)**", l.iterations)
+            }
+            _ => solve,
         };
         t.row([
             r.face.clone(),
@@ -395,6 +429,7 @@ mod tests {
             crossing_pieces: Vec::new(),
             rig_crossings: 0,
             rig_crossing_pieces: Vec::new(),
+            lining: None,
         }
     }
 

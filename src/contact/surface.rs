@@ -196,40 +196,11 @@ impl FaceContact {
             vec![true, false, false, false],
             vec![true, false, false, false],
         ];
-        let mesh = ContactMesh::with_groups(&rest, faces, group, &can_touch)?;
-        // Pairs within d̂ at rest are neighbours along the surface: their barrier acts only
-        // once they have closed half their rest gap.
-        let candidates = Candidates::build(&mesh, &rest, dhat)?;
-        let own = |kind: super::CollisionKind, ids: [u32; 4]| {
-            let d = kind
-                .distance_squared(&super::math::stencil(&rest, ids))
-                .sqrt();
-            (d < dhat).then_some(if d < ATTACHED_AT_REST * dhat {
-                0.0
-            } else {
-                CLOSE_PAIR_ACTIVATION * d
-            })
-        };
-        let close_pt: Vec<((u32, u32), f64)> = candidates
-            .point_triangle
-            .iter()
-            .filter_map(|c| {
-                let f = mesh.faces()[c.face as usize];
-                let ids = [c.vertex, f[0], f[1], f[2]];
-                own(super::CollisionKind::PointTriangle, ids).map(|a| ((c.vertex, c.face), a))
-            })
-            .collect();
-        let close_ee: Vec<((u32, u32), f64)> = candidates
-            .edge_edge
-            .iter()
-            .filter_map(|c| {
-                let [a0, a1] = mesh.edges()[c.edge_a as usize];
-                let [b0, b1] = mesh.edges()[c.edge_b as usize];
-                own(super::CollisionKind::EdgeEdge, [a0, a1, b0, b1])
-                    .map(|a| ((c.edge_a, c.edge_b), a))
-            })
-            .collect();
-        let mesh = mesh.with_close_pairs(close_pt, close_ee);
+        let mesh = with_rest_close_pairs(
+            ContactMesh::with_groups(&rest, faces, group, &can_touch)?,
+            &rest,
+            dhat,
+        )?;
         let (of_vertex, inside): (Vec<u32>, Vec<bool>) = of_vertex_inside.into_iter().unzip();
         let cells = Cells {
             face_neighbours: face_neighbours(tets, &of_vertex),
@@ -424,6 +395,49 @@ impl FaceContact {
         out.sort_unstable();
         out
     }
+}
+
+/// `mesh` with the pairs that are within d̂ at `rest` given their own activation distance:
+/// half their rest distance ([`CLOSE_PAIR_ACTIVATION`]), or 0 (attached: out of the barrier
+/// and CCD) for pairs closer than [`ATTACHED_AT_REST`]·d̂. Pairs within d̂ at rest are
+/// neighbours along a finely tessellated surface, or pieces the rig lays on each other (the
+/// lining on its gums, through its back teeth): their barrier acts only once they have closed
+/// half their rest gap.
+pub fn with_rest_close_pairs(
+    mesh: ContactMesh,
+    rest: &[f64],
+    dhat: f64,
+) -> Result<ContactMesh, ContactError> {
+    let candidates = Candidates::build(&mesh, rest, dhat)?;
+    let own = |kind: super::CollisionKind, ids: [u32; 4]| {
+        let d = kind
+            .distance_squared(&super::math::stencil(rest, ids))
+            .sqrt();
+        (d < dhat).then_some(if d < ATTACHED_AT_REST * dhat {
+            0.0
+        } else {
+            CLOSE_PAIR_ACTIVATION * d
+        })
+    };
+    let close_pt: Vec<((u32, u32), f64)> = candidates
+        .point_triangle
+        .iter()
+        .filter_map(|c| {
+            let f = mesh.faces()[c.face as usize];
+            let ids = [c.vertex, f[0], f[1], f[2]];
+            own(super::CollisionKind::PointTriangle, ids).map(|a| ((c.vertex, c.face), a))
+        })
+        .collect();
+    let close_ee: Vec<((u32, u32), f64)> = candidates
+        .edge_edge
+        .iter()
+        .filter_map(|c| {
+            let [a0, a1] = mesh.edges()[c.edge_a as usize];
+            let [b0, b1] = mesh.edges()[c.edge_b as usize];
+            own(super::CollisionKind::EdgeEdge, [a0, a1, b0, b1]).map(|a| ((c.edge_a, c.edge_b), a))
+        })
+        .collect();
+    Ok(mesh.with_close_pairs(close_pt, close_ee))
 }
 
 /// The pairs of `cells` (elements of `tets`, [`NO_CELL`] skipped) that share a face.

@@ -12,6 +12,7 @@ use serde::{Deserialize, Serialize};
 use super::{ExportError, Out};
 use crate::model::FaceModel;
 use crate::model::audit::CrossingAudit;
+use crate::model::deep_lining::DeepLiningStats;
 use crate::session::Frame;
 use crate::sim::{Quality, Termination};
 
@@ -36,6 +37,9 @@ pub struct FrameRecord {
     pub crossings: usize,
     /// Those crossings by pair of pieces (`"face skin / mouth socket"`).
     pub crossing_pieces: Vec<(String, usize)>,
+    /// The deep lining's contact pass, where it ran (final frames with contact).
+    #[serde(default)]
+    pub lining: Option<DeepLiningStats>,
 }
 
 /// The whole export (module doc).
@@ -114,6 +118,7 @@ impl ReportBuilder {
             from_rest: stats.from_rest,
             crossings: crossings.pairs,
             crossing_pieces: crossings.by_pieces,
+            lining: stats.lining.clone(),
         });
     }
 

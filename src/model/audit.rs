@@ -119,23 +119,28 @@ impl CrossingAudit {
             .collect()
     }
 
-    /// The crossings of the skin and lining (among themselves and with the teeth) at
-    /// `positions` (render-vertex order) by edges and triangles that crossed nothing at rest.
-    pub fn audit(&self, face: &FaceModel, positions: &[Point3<f64>]) -> Crossings {
-        let rig = &face.render.rig_vertices;
-        let new: Vec<EdgeTrianglePair> = self
-            .crossing_pairs(positions)
+    /// The crossing pairs [`Self::audit`] counts: edges and triangles (render-vertex indices)
+    /// that crossed nothing at rest and cross at `positions`.
+    pub fn new_crossings(&self, positions: &[Point3<f64>]) -> Vec<([u32; 2], [u32; 3])> {
+        self.crossing_pairs(positions)
             .into_iter()
             .filter(|p| {
                 self.rest_edges.binary_search(&p.edge).is_err()
                     && self.rest_triangles.binary_search(&p.triangle).is_err()
             })
-            .collect();
+            .map(|p| (p.edge, self.surface.triangles[p.triangle as usize]))
+            .collect()
+    }
+
+    /// The crossings of the skin and lining (among themselves and with the teeth) at
+    /// `positions` (render-vertex order) by edges and triangles that crossed nothing at rest.
+    pub fn audit(&self, face: &FaceModel, positions: &[Point3<f64>]) -> Crossings {
+        let rig = &face.render.rig_vertices;
+        let new = self.new_crossings(positions);
         let mut by_pieces: Vec<(String, usize)> = Vec::new();
-        for p in &new {
+        for (edge, t) in &new {
             let name = |v: u32| self.pieces[v as usize].map_or("other", |r| r.name());
-            let t = self.surface.triangles[p.triangle as usize];
-            let mut names = [name(p.edge[0]), name(t[0])];
+            let mut names = [name(edge[0]), name(t[0])];
             names.sort_unstable();
             let key = format!("{} / {}", names[0], names[1]);
             match by_pieces.iter_mut().find(|(k, _)| *k == key) {
@@ -147,7 +152,7 @@ impl CrossingAudit {
         Crossings {
             pairs: new.len(),
             by_pieces,
-            first_rig_vertex: new.first().map(|p| rig[p.edge[0] as usize]),
+            first_rig_vertex: new.first().map(|(edge, _)| rig[edge[0] as usize]),
         }
     }
 }

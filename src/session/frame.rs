@@ -9,6 +9,7 @@ use super::crosses::{CrossArm, actuation_crosses};
 use super::heatmap::{FieldInput, FieldSource, ScalarField};
 use crate::drive::{Actuation, Codes};
 use crate::model::FaceModel;
+use crate::model::deep_lining::{DeepLining, DeepLiningStats, LiningMemory};
 use crate::sim::{Quality, RigidMotion, SolveStats, Termination};
 
 /// Solver figures of one frame.
@@ -39,6 +40,10 @@ pub struct FrameStats {
     /// display change, a repeated slider value), so the frame reuses that solve.
     #[serde(default)]
     pub reused: bool,
+    /// The deep lining's contact pass, where it ran (final frames with contact,
+    /// [`crate::model::deep_lining::runs_at`]).
+    #[serde(default)]
+    pub lining: Option<DeepLiningStats>,
 }
 
 impl FrameStats {
@@ -54,6 +59,7 @@ impl FrameStats {
             contacts: stats.contact.as_ref().map(|c| c.active_pairs),
             contact_skipped: stats.contact.as_ref().is_some_and(|c| c.gate.skipped()),
             reused: false,
+            lining: None,
         }
     }
 }
@@ -91,6 +97,12 @@ pub struct Solved<'a> {
     pub actuation: &'a Actuation,
 }
 
+/// The deep lining's contact pass for a frame and its warm start.
+pub struct LiningPass<'a> {
+    pub pass: &'a DeepLining,
+    pub memory: &'a mut LiningMemory,
+}
+
 /// What to compute besides geometry.
 #[derive(Clone, Copy, Debug)]
 pub struct Overlays {
@@ -105,16 +117,21 @@ pub struct Geometry {
     pub mesh_positions: Vec<[f32; 3]>,
     pub crosses: Vec<super::crosses::CrossArm>,
     pub heatmaps: Vec<ScalarField>,
+    pub lining: Option<DeepLiningStats>,
 }
 
+/// The frame's geometry: render positions (the deep lining moved off the teeth by `lining`
+/// when given), normals and the overlays.
 pub fn geometry(
     solved: &Solved<'_>,
     overlays: Overlays,
     sources: &[Box<dyn FieldSource>],
+    lining: Option<LiningPass<'_>>,
 ) -> Option<Geometry> {
     let model = solved.model;
     let bones = solved.actuation.bones();
-    let positions = model.render_positions(solved.x, &bones);
+    let mut positions = model.render_positions(solved.x, &bones);
+    let lining = lining.map(|l| l.pass.apply(&mut positions, l.memory));
     let normals = vertex_normals(&positions, &model.render.triangles);
     let crosses = if overlays.crosses {
         actuation_crosses(&model.mesh, solved.x, &solved.actuation.tensors)
@@ -144,6 +161,7 @@ pub fn geometry(
             .collect(),
         crosses,
         heatmaps,
+        lining,
     };
     let finite = |v: &[[f32; 3]]| v.iter().flatten().all(|c| c.is_finite());
     let ok = finite(&g.positions)

@@ -849,6 +849,47 @@ fn contact_on_keeps_the_rolled_lips_apart_in_the_session() {
     assert_eq!(off.stats.contacts, None);
 }
 
+/// What the artist sees at the final preset with contact is crossing-free inside the mouth
+/// too: the smile's final frame carries the deep lining's pass (it ran, converged and moved
+/// the cheeks' inside off the lower teeth), and the independent audit of the frame's render
+/// surface finds no crossing. An interactive frame leaves the pass out.
+#[test]
+fn final_frames_with_contact_keep_the_deep_lining_off_the_teeth() {
+    let faces = sample_faces()[..1].to_vec();
+    let model = faces[0].model.clone();
+    let s = Session::new(faces.clone(), Quality::Final).unwrap();
+    s.submit_all(&[Request::Refine(false), Request::Contact(true)])
+        .unwrap();
+    let g = s.submit(expression("mouthSmile_L", 1.0)).unwrap();
+    let f = s.wait_generation(g, WAIT).unwrap();
+    assert!(
+        f.error.is_none() && f.stats.converged,
+        "{:?} {:?}",
+        f.error,
+        f.stats
+    );
+    let lining = f
+        .stats
+        .lining
+        .as_ref()
+        .expect("final frames with contact run the pass");
+    assert!(lining.converged && lining.largest_push > 0.05, "{lining:?}");
+    let positions: Vec<nalgebra::Point3<f64>> = f
+        .positions
+        .iter()
+        .map(|p| nalgebra::Point3::new(p[0] as f64, p[1] as f64, p[2] as f64))
+        .collect();
+    let audit = crate::model::audit::CrossingAudit::new(&model);
+    assert_eq!(audit.audit(&model, &positions).pairs, 0);
+
+    let s = Session::new(faces, Quality::Interactive).unwrap();
+    s.submit_all(&[Request::Refine(false), Request::Contact(true)])
+        .unwrap();
+    let g = s.submit(expression("mouthSmile_L", 0.2)).unwrap();
+    let f = s.wait_generation(g, WAIT).unwrap();
+    assert_eq!(f.stats.lining, None);
+}
+
 /// The bundled sample's faces as the editor opens them (the actuation basis).
 fn sample_faces() -> Vec<SessionFace> {
     crate::sample::Sample::load(

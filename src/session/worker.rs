@@ -7,13 +7,14 @@ use std::time::{Duration, Instant};
 
 use serde::{Deserialize, Serialize};
 
-use super::frame::{Frame, FrameStats, Overlays, Solved, geometry};
+use super::frame::{Frame, FrameStats, LiningPass, Overlays, Solved, geometry};
 use super::heatmap::{FieldSource, builtin_sources};
 use super::session_face::{FaceTopology, SessionFace};
 use crate::contact::ContactError;
 use crate::contact::surface::FaceContact;
 use crate::drive::{Codes, DriveError};
 use crate::model::contact_region::FaceContactSettings;
+use crate::model::deep_lining::{self, DeepLining, LiningMemory};
 use crate::rig::ExpressionCode;
 use crate::rig::style::StyleCode;
 use crate::sequence::{FrameFailure, Sequence};
@@ -350,6 +351,9 @@ struct FaceSim {
     /// What the sequence's state holds the solve of (`None` after a failed or interrupted
     /// solve).
     last: Option<LastSolve>,
+    /// The deep lining's contact pass and its last configuration (final frames with contact).
+    lining: DeepLining,
+    lining_memory: LiningMemory,
 }
 
 /// The inputs a face's state was solved for and that solve's results: identical inputs at
@@ -518,10 +522,13 @@ impl Worker {
             if self.sims[inputs.face].is_none() {
                 let mut sim = face.model.simulator()?;
                 let surfaces = FaceContact::new(&face.model, &FaceContactSettings::default())?;
+                let lining = DeepLining::new(&face.model, &surfaces)?;
                 sim.set_contact(surfaces)?;
                 self.sims[inputs.face] = Some(FaceSim {
                     sequence: Sequence::new(sim),
                     last: None,
+                    lining,
+                    lining_memory: LiningMemory::default(),
                 });
             }
             let fs = self.sims[inputs.face].as_mut().expect("built above");
@@ -574,10 +581,15 @@ impl Worker {
                     x: fs.sequence.state().flat_positions(),
                     actuation: &actuation,
                 };
-                match geometry(&solved, overlays, &self.sources) {
+                let lining = deep_lining::runs_at(quality, inputs.contact).then_some(LiningPass {
+                    pass: &fs.lining,
+                    memory: &mut fs.lining_memory,
+                });
+                match geometry(&solved, overlays, &self.sources, lining) {
                     Some(g) => {
                         let mut frame_stats = FrameStats::from_solve(&stats, 0.0);
                         frame_stats.reused = reused.is_some();
+                        frame_stats.lining = g.lining;
                         if reused.is_none() {
                             fs.last = Some(LastSolve {
                                 codes: inputs.codes,
@@ -675,6 +687,7 @@ impl Worker {
                 contacts: None,
                 contact_skipped: false,
                 reused: false,
+                lining: None,
             },
             error: Some(error.to_string()),
         }

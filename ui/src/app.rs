@@ -232,6 +232,26 @@ impl EditorApp {
                 if f.stats.reused {
                     ui.label("same inputs: the last solve reused");
                 }
+                match &f.stats.lining {
+                    Some(l) if l.error.is_some() || !l.converged => {
+                        ui.label(
+                            RichText::new(format!(
+                                "inner mouth lining: {}",
+                                l.error
+                                    .as_deref()
+                                    .unwrap_or("kept off the teeth, not settled")
+                            ))
+                            .color(Color32::from_rgb(230, 140, 0)),
+                        );
+                    }
+                    Some(l) => {
+                        ui.label(format!(
+                            "inner mouth lining kept off the teeth ({:.1} ms)",
+                            l.ms
+                        ));
+                    }
+                    None => {}
+                }
                 if f.error.is_none() && !f.stats.converged {
                     ui.label(
                         RichText::new(format!(

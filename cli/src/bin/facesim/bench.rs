@@ -444,6 +444,7 @@ pub fn bench_shapes(args: &ShapesArgs) -> Result<()> {
                 contact,
                 ..args.quality.settings()
             };
+            let lining = facesim::model::deep_lining::runs_at(args.quality, contact);
             let bar = progress::bar(0, BAR);
             bar.set_message(format!(
                 "{} with contact {}",
@@ -451,10 +452,17 @@ pub fn bench_shapes(args: &ShapesArgs) -> Result<()> {
                 if contact { "on" } else { "off" }
             ));
             rows.extend(
-                shapes::measure(&rig, &measured, &codes, &settings, &|done, total| {
-                    bar.set_length(total as u64);
-                    bar.set_position(done as u64);
-                })
+                shapes::measure(
+                    &rig,
+                    &measured,
+                    &codes,
+                    &settings,
+                    lining,
+                    &|done, total| {
+                        bar.set_length(total as u64);
+                        bar.set_position(done as u64);
+                    },
+                )
                 .with_context(|| format!("measuring {}", face.name))?,
             );
             bar.finish_and_clear();

@@ -1,0 +1,552 @@
+//! The deep mouth lining kept off the teeth and off itself: a contact pass over the render
+//! vertices that the solver's contact surface leaves out.
+//!
+//! The solver's contact ([`super::contact_region`]) holds the lips and the lining within
+//! `lining_reach` of the lip line. The lining deeper in the mouth (the cheeks' inside, the floor
+//! of the mouth, the lining along the gums) is no simulation vertex: it follows the tissue with
+//! long levers or the bones by the rig's jaw maps, and those kinematic bindings carry it through
+//! the teeth as the jaw moves (the rig's own shapes do too). This pass moves only those *free*
+//! vertices, after the solve, to where they are crossing-free:
+//!
+//! `min_p  ½·Σᵢ wᵢ‖pᵢ − bᵢ‖² + κ·B(p)`
+//!
+//! over the free lining and its *obstacles* (the teeth, the solver's contact lining and the
+//! lip-line skin), where `bᵢ` is where the bindings put vertex `i` (cm), `B` the IPC barrier
+//! over the pass's surface (free against free and free against obstacles; obstacles do not
+//! meet each other here, the solver and the jaw pose keep them apart), `wᵢ = 1` for a free
+//! vertex and [`OBSTACLE_WEIGHT`] for an obstacle. It starts at rest (crossing-free but for
+//! the rig's own crossings at rest, which are attached and left alone,
+//! [`crate::contact::surface::with_rest_close_pairs`]) and takes projected-Newton steps
+//! `(W + [∇²B]₊)·d = −∇E` cut by CCD, so no configuration it passes through crosses. The
+//! obstacles, pulled by a spring `10⁶` times stiffer, end within `F/w` of where the solve put
+//! them (a µm at most); the pass then puts them back exactly, and certifies that last move
+//! with CCD too. A free vertex moves only as far as the teeth push it: where nothing is near,
+//! `pᵢ = bᵢ`.
+
+use std::time::Instant;
+
+use nalgebra::Point3;
+use serde::{Deserialize, Serialize};
+
+use super::FaceModel;
+use crate::contact::barrier_first_derivative;
+use crate::contact::potential::HessianBlock;
+use crate::contact::surface::{FaceContact, with_rest_close_pairs};
+use crate::contact::{
+    BarrierPotential, Candidates, CcdOptions, Collisions, ContactError, ContactMesh, Projection,
+    collision_free_step_over,
+};
+use crate::rig::Region;
+use crate::sim::Quality;
+
+/// The obstacles' spring, relative to the free lining's: they end within `F/w` of their
+/// bound positions, which the last, certified move closes.
+pub const OBSTACLE_WEIGHT: f64 = 1e6;
+
+/// Newton stops once no vertex's step is longer than this (cm).
+const STEP_TOLERANCE: f64 = 1e-4;
+
+/// Newton iterations before the pass gives up (its positions are then crossing-free but not
+/// at the minimum, and the stats say so).
+const MAX_ITERATIONS: usize = 200;
+
+/// The farthest (cm) the barrier must be able to hold a free vertex from where its binding
+/// puts it, at half of d̂ from what it meets: it sets the barrier's stiffness.
+const HOLD: f64 = 1.0;
+
+/// A pair closer than this share of d̂, and still closing, doubles κ (up to 10⁴ times its
+/// start), as ipc-toolkit's update does.
+const TIGHT: f64 = 0.01;
+
+/// `(κ, κ_max)`: `κ·|∂b/∂d|` at `d = d̂/2` is the pull of a free vertex [`HOLD`] from its
+/// binding (unit weight), `b(d², d̂²)` the barrier of squared distances, so
+/// `∂b/∂d = 2d·b′(d²)`.
+fn stiffness(dhat: f64) -> (f64, f64) {
+    let d = 0.5 * dhat;
+    let force = (2.0 * d * barrier_first_derivative(d * d, dhat * dhat)).abs();
+    let kappa = HOLD / force;
+    (kappa, 1e4 * kappa)
+}
+
+/// Vertex groups of the pass's contact mesh.
+const FREE: u16 = 0;
+const OBSTACLE: u16 = 1;
+
+/// What the pass did for one frame.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct DeepLiningStats {
+    /// Newton steps taken.
+    pub iterations: usize,
+    /// Whether Newton reached its tolerance (the positions are crossing-free either way).
+    pub converged: bool,
+    /// Active pairs (closer than d̂) at the end.
+    pub active_pairs: usize,
+    /// How far the pass moved the farthest free vertex from where its binding put it (cm).
+    pub largest_push: f64,
+    pub ms: f64,
+    /// Why the pass failed, if it did: the frame then shows the lining where its bindings
+    /// put it.
+    #[serde(default)]
+    pub error: Option<String>,
+}
+
+/// Whether frames solved at `quality` with `contact` get the pass: final frames with contact
+/// (the editor's refined frame once the sliders rest, and exports). From rest it costs a
+/// median 0.8 s per pose on the sample (21 s at worst, a jaw opened wide), warm-started from
+/// the last frame much less; the interactive and preview presets leave it out.
+pub fn runs_at(quality: Quality, contact: bool) -> bool {
+    contact && quality == Quality::Final
+}
+
+/// The pass's last configuration (crossing-free, obstacles where that frame's solve put
+/// them): the next frame starts from it instead of from rest.
+#[derive(Clone, Debug, Default)]
+pub struct LiningMemory {
+    x: Option<Vec<f64>>,
+}
+
+/// Errors of the pass.
+#[derive(Debug, thiserror::Error)]
+pub enum DeepLiningError {
+    #[error("deep lining contact: {0}")]
+    Contact(#[from] ContactError),
+    #[error(
+        "deep lining contact: {count} render positions given, the pass needs at least {expected}"
+    )]
+    Positions { count: usize, expected: usize },
+    #[error(
+        "deep lining contact: the obstacles could not be put back where the solve put them without crossing the lining (step {step:.3})"
+    )]
+    ObstaclesBlocked { step: f64 },
+}
+
+/// The pass of one face (module doc): its surface and who is free.
+#[derive(Clone, Debug)]
+pub struct DeepLining {
+    /// Render index of every pass vertex.
+    render: Vec<u32>,
+    /// Whether each pass vertex is free lining (else an obstacle).
+    free: Vec<bool>,
+    mesh: ContactMesh,
+    /// Rest positions, interleaved (cm).
+    rest: Vec<f64>,
+    dhat: f64,
+}
+
+impl DeepLining {
+    /// The pass for `model` beside the solver's contact surface `solver`: the free vertices
+    /// are the mouth lining it leaves out.
+    pub fn new(model: &FaceModel, solver: &FaceContact) -> Result<Self, ContactError> {
+        let render = &model.render;
+        let mut in_solver = vec![false; render.rest.len()];
+        for &r in solver.render_vertices() {
+            in_solver[r as usize] = true;
+        }
+        let region: Vec<Option<Region>> = render
+            .rig_vertices
+            .iter()
+            .map(|&v| Region::of_vertex(v as usize))
+            .collect();
+        let free_render =
+            |i: u32| region[i as usize] == Some(Region::MouthSocket) && !in_solver[i as usize];
+        let taken = |i: u32| {
+            matches!(
+                region[i as usize],
+                Some(
+                    Region::MouthSocket
+                        | Region::UpperTeeth
+                        | Region::LowerTeeth
+                        | Region::FaceSkin
+                )
+            )
+        };
+        // The lining's and teeth's triangles (the lining's reach the lip-line skin).
+        let triangles: Vec<[u32; 3]> = render
+            .triangles
+            .iter()
+            .filter(|t| {
+                t.iter().all(|&v| taken(v))
+                    && t.iter()
+                        .any(|&v| region[v as usize] != Some(Region::FaceSkin))
+            })
+            .copied()
+            .collect();
+        let mut index = vec![u32::MAX; render.rest.len()];
+        let mut vertices = Vec::new();
+        for &v in triangles.iter().flatten() {
+            if index[v as usize] == u32::MAX {
+                index[v as usize] = 0;
+            }
+        }
+        for (i, slot) in index.iter_mut().enumerate() {
+            if *slot == 0 {
+                *slot = vertices.len() as u32;
+                vertices.push(i as u32);
+            }
+        }
+        let faces: Vec<[u32; 3]> = triangles
+            .iter()
+            .map(|t| t.map(|v| index[v as usize]))
+            .collect();
+        let free: Vec<bool> = vertices.iter().map(|&v| free_render(v)).collect();
+        let group: Vec<u16> = free
+            .iter()
+            .map(|&f| if f { FREE } else { OBSTACLE })
+            .collect();
+        let rest: Vec<f64> = vertices
+            .iter()
+            .flat_map(|&v| {
+                let p = render.rest[v as usize];
+                [p.x, p.y, p.z]
+            })
+            .collect();
+        let can_touch = [vec![true, true], vec![true, false]];
+        let mesh = with_rest_close_pairs(
+            ContactMesh::with_groups(&rest, faces, group, &can_touch)?,
+            &rest,
+            model.d_hat,
+        )?;
+        Ok(Self {
+            render: vertices,
+            free,
+            mesh,
+            rest,
+            dhat: model.d_hat,
+        })
+    }
+
+    /// `candidates` without the pairs attached at rest (activation 0: the rig lays them on
+    /// each other, and neither the barrier nor CCD takes them).
+    fn unattached(&self, mut candidates: Candidates) -> Candidates {
+        let mesh = &self.mesh;
+        candidates
+            .point_triangle
+            .retain(|c| mesh.point_triangle_activation(c.vertex, c.face) != Some(0.0));
+        candidates
+            .edge_edge
+            .retain(|c| mesh.edge_edge_activation(c.edge_a, c.edge_b) != Some(0.0));
+        candidates
+    }
+
+    /// How many render vertices the pass moves.
+    pub fn free_count(&self) -> usize {
+        self.free.iter().filter(|&&f| f).count()
+    }
+
+    /// Moves the free lining of `posed` (every render vertex, where the bindings put it) to
+    /// where it crosses neither the teeth, the rest of the lining nor itself (module doc).
+    /// It starts from `memory` (or from rest) and leaves its result there; on an error
+    /// `posed` is unchanged and the next frame starts from rest.
+    ///
+    /// [`Self::apply`] is the same with the error in the stats.
+    pub fn resolve(
+        &self,
+        posed: &mut [Point3<f64>],
+        memory: &mut LiningMemory,
+    ) -> Result<DeepLiningStats, DeepLiningError> {
+        let start = memory.x.take();
+        let mut x = match start {
+            Some(x) if x.len() == self.rest.len() => x,
+            _ => self.rest.clone(),
+        };
+        let stats = self.minimize(posed, &mut x)?;
+        memory.x = Some(x);
+        Ok(stats)
+    }
+
+    /// [`Self::resolve`], a failure reported in the stats (`error`, not converged) with
+    /// `posed` left where the bindings put it.
+    pub fn apply(&self, posed: &mut [Point3<f64>], memory: &mut LiningMemory) -> DeepLiningStats {
+        self.resolve(posed, memory)
+            .unwrap_or_else(|e| DeepLiningStats {
+                error: Some(e.to_string()),
+                ..DeepLiningStats::default()
+            })
+    }
+
+    /// [`Self::resolve`] from the crossing-free configuration `x` (the pass's vertices,
+    /// interleaved), which it leaves at the result.
+    fn minimize(
+        &self,
+        posed: &mut [Point3<f64>],
+        x: &mut [f64],
+    ) -> Result<DeepLiningStats, DeepLiningError> {
+        let start = Instant::now();
+        let expected = posed.len();
+        if let Some(&v) = self.render.iter().find(|&&v| v as usize >= expected) {
+            return Err(DeepLiningError::Positions {
+                count: expected,
+                expected: v as usize + 1,
+            });
+        }
+        let n = self.render.len();
+        let target: Vec<f64> = self
+            .render
+            .iter()
+            .flat_map(|&v| {
+                let p = posed[v as usize];
+                [p.x, p.y, p.z]
+            })
+            .collect();
+        let weight: Vec<f64> = self
+            .free
+            .iter()
+            .map(|&f| if f { 1.0 } else { OBSTACLE_WEIGHT })
+            .collect();
+        let spring = |x: &[f64]| -> f64 {
+            (0..n)
+                .map(|i| {
+                    let d2: f64 = (0..3)
+                        .map(|k| (x[3 * i + k] - target[3 * i + k]).powi(2))
+                        .sum();
+                    0.5 * weight[i] * d2
+                })
+                .sum()
+        };
+        let collisions = Collisions::build(&self.mesh, x, self.dhat)?;
+        let (mut kappa, kappa_max) = stiffness(self.dhat);
+        let mut min_d2 = collisions.min_distance_squared();
+        let mut stats = DeepLiningStats::default();
+        let ccd = CcdOptions::default();
+        let mut collisions = collisions;
+        for _ in 0..MAX_ITERATIONS {
+            let barrier = BarrierPotential::new(self.dhat, kappa)?;
+            let mut gradient: Vec<f64> = (0..3 * n)
+                .map(|j| weight[j / 3] * (x[j] - target[j]))
+                .collect();
+            barrier.add_gradient(&collisions, x, &mut gradient)?;
+            let blocks = barrier.hessian(&collisions, x, Projection::ClampEigenvalues)?;
+            let rhs: Vec<f64> = gradient.iter().map(|g| -g).collect();
+            let direction = solve_spd(&weight, &blocks, &rhs);
+            let longest = (0..n)
+                .map(|i| {
+                    (0..3)
+                        .map(|k| direction[3 * i + k].powi(2))
+                        .sum::<f64>()
+                        .sqrt()
+                })
+                .fold(0.0, f64::max);
+            if longest <= STEP_TOLERANCE {
+                stats.converged = true;
+                break;
+            }
+            let candidates = self.unattached(Candidates::build_swept(
+                &self.mesh, x, &direction, self.dhat,
+            )?);
+            let mut alpha =
+                collision_free_step_over(&self.mesh, &candidates, x, &direction, &ccd)?.step;
+            if alpha <= 0.0 {
+                // A pair at round-off distance blocks every motion: stop where it is
+                // (crossing-free, not at the minimum).
+                break;
+            }
+            let energy = spring(x) + barrier.value(&collisions, x)?;
+            let mut trial = x.to_vec();
+            loop {
+                for j in 0..3 * n {
+                    trial[j] = x[j] + alpha * direction[j];
+                }
+                // A trial may bring a pair to round-off distance (`Touching`): shorten it.
+                if let Ok(c) =
+                    Collisions::from_candidates(&self.mesh, &candidates, &trial, self.dhat)
+                {
+                    let e = spring(&trial) + barrier.value(&c, &trial)?;
+                    if e <= energy || alpha < 1e-12 {
+                        collisions = c;
+                        break;
+                    }
+                }
+                alpha *= 0.5;
+            }
+            // The swept candidates hold every pair within d̂ anywhere along the step, so
+            // `collisions` (from them, at the accepted trial) is the whole active set there.
+            x.copy_from_slice(&trial);
+            let d2 = collisions.min_distance_squared();
+            if d2 < (TIGHT * self.dhat).powi(2) && d2 < min_d2 {
+                kappa = (2.0 * kappa).min(kappa_max);
+            }
+            min_d2 = d2;
+            stats.iterations += 1;
+        }
+        // Put the obstacles back where the solve put them, certified collision-free.
+        let back: Vec<f64> = (0..3 * n)
+            .map(|j| {
+                if self.free[j / 3] {
+                    0.0
+                } else {
+                    target[j] - x[j]
+                }
+            })
+            .collect();
+        let candidates = self.unattached(Candidates::build_swept(&self.mesh, x, &back, 0.0)?);
+        let step = collision_free_step_over(&self.mesh, &candidates, x, &back, &ccd)?.step;
+        if step < 1.0 {
+            return Err(DeepLiningError::ObstaclesBlocked { step });
+        }
+        for j in 0..3 * n {
+            x[j] += back[j];
+        }
+        stats.active_pairs = Collisions::build(&self.mesh, x, self.dhat)?.len();
+        for (i, &v) in self
+            .render
+            .iter()
+            .enumerate()
+            .filter(|(i, _)| self.free[*i])
+        {
+            let p = Point3::new(x[3 * i], x[3 * i + 1], x[3 * i + 2]);
+            stats.largest_push = stats.largest_push.max((p - posed[v as usize]).norm());
+            posed[v as usize] = p;
+        }
+        stats.ms = start.elapsed().as_secs_f64() * 1e3;
+        Ok(stats)
+    }
+}
+
+/// `(diag(w)⊗I₃ + Σ blocks)·d = rhs` by conjugate gradients with the diagonal as
+/// preconditioner (the blocks are PSD, the diagonal positive).
+fn solve_spd(weight: &[f64], blocks: &[HessianBlock], rhs: &[f64]) -> Vec<f64> {
+    let m = rhs.len();
+    let mut diagonal: Vec<f64> = (0..m).map(|j| weight[j / 3]).collect();
+    for b in blocks {
+        for (a, &v) in b.vertices.iter().enumerate() {
+            for k in 0..3 {
+                diagonal[3 * v as usize + k] += b.matrix[(3 * a + k, 3 * a + k)];
+            }
+        }
+    }
+    let apply = |v: &[f64], out: &mut [f64]| {
+        for j in 0..m {
+            out[j] = weight[j / 3] * v[j];
+        }
+        crate::contact::add_hessian_product(blocks, v, out);
+    };
+    let dot = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>();
+    let mut d = vec![0.0; m];
+    let mut r = rhs.to_vec();
+    let mut z: Vec<f64> = r.iter().zip(&diagonal).map(|(r, g)| r / g).collect();
+    let mut p = z.clone();
+    let mut rz = dot(&r, &z);
+    let tolerance = 1e-20 * rz.max(1e-300);
+    let mut ap = vec![0.0; m];
+    for _ in 0..m.min(1_000) {
+        if rz <= tolerance {
+            break;
+        }
+        apply(&p, &mut ap);
+        let alpha = rz / dot(&p, &ap);
+        for j in 0..m {
+            d[j] += alpha * p[j];
+            r[j] -= alpha * ap[j];
+        }
+        for j in 0..m {
+            z[j] = r[j] / diagonal[j];
+        }
+        let rz_next = dot(&r, &z);
+        let beta = rz_next / rz;
+        rz = rz_next;
+        for j in 0..m {
+            p[j] = z[j] + beta * p[j];
+        }
+    }
+    d
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::drive::Codes;
+    use crate::model::audit::CrossingAudit;
+    use crate::model::contact_region::FaceContactSettings;
+    use crate::rig::ExpressionCode;
+    use crate::sample::{SAMPLE_DIR, Sample};
+
+    /// The sample's template smiling at full weight, solved from rest at the final preset with
+    /// contact, and its render surface where the bindings put it: the lips are kept apart by
+    /// the solve, the cheeks' inside (deep lining) is carried through the lower teeth.
+    fn smile() -> (Sample, Vec<Point3<f64>>) {
+        let sample =
+            Sample::load(std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(SAMPLE_DIR))
+                .unwrap();
+        let face = &sample.faces[0];
+        let mut sim = face.model.simulator().unwrap();
+        sim.set_contact(FaceContact::new(&face.model, &FaceContactSettings::default()).unwrap())
+            .unwrap();
+        let codes = Codes {
+            expression: ExpressionCode::single("mouthSmile_L", 1.0).unwrap(),
+            style: face.style,
+        };
+        let actuation = face.actuation.actuate(&codes).unwrap();
+        let bones = actuation.bones();
+        let mut state = sim.rest_state();
+        let settings = crate::sim::SolveSettings {
+            contact: true,
+            ..Quality::Final.settings()
+        };
+        let stats = sim
+            .solve(&actuation.tensors, &bones, &mut state, &settings)
+            .unwrap();
+        assert!(stats.converged(), "{stats:?}");
+        let posed = face.model.render_positions(state.flat_positions(), &bones);
+        (sample, posed)
+    }
+
+    /// The pass takes the deep lining off the teeth (the independent audit finds no crossing
+    /// left), moves nothing but the deep lining, and moves most of it not at all; it is
+    /// deterministic, and warm-started from its own result it stays there.
+    #[test]
+    fn the_deep_lining_is_kept_off_the_teeth_and_nothing_else_moves() {
+        let (sample, bound) = smile();
+        let model = &sample.faces[0].model;
+        let audit = CrossingAudit::new(model);
+        let before = audit.audit(model, &bound);
+        assert!(
+            before
+                .by_pieces
+                .iter()
+                .any(|(k, _)| k.contains("teeth / mouth socket")),
+            "{before:?}"
+        );
+        let solver = FaceContact::new(model, &FaceContactSettings::default()).unwrap();
+        let pass = DeepLining::new(model, &solver).unwrap();
+        let mut memory = LiningMemory::default();
+        let mut posed = bound.clone();
+        let stats = pass.resolve(&mut posed, &mut memory).unwrap();
+        assert!(stats.converged && stats.largest_push > 0.05, "{stats:?}");
+        assert_eq!(audit.audit(model, &posed).pairs, 0);
+
+        let mut moved = Vec::new();
+        for (i, (p, b)) in posed.iter().zip(&bound).enumerate() {
+            let free = pass
+                .render
+                .iter()
+                .position(|&v| v as usize == i)
+                .is_some_and(|k| pass.free[k]);
+            if free {
+                moved.push((p - b).norm());
+            } else {
+                assert_eq!(p, b, "render vertex {i} is no free lining and moved");
+            }
+        }
+        moved.sort_by(f64::total_cmp);
+        assert!(
+            moved[moved.len() / 2] < 1e-4,
+            "median push {}",
+            moved[moved.len() / 2]
+        );
+
+        let mut again = bound.clone();
+        pass.resolve(&mut again, &mut LiningMemory::default())
+            .unwrap();
+        assert_eq!(again, posed, "same input, same output");
+
+        let mut warm = bound.clone();
+        let stats = pass.resolve(&mut warm, &mut memory).unwrap();
+        assert!(stats.converged && stats.iterations <= 2, "{stats:?}");
+        let drift = warm
+            .iter()
+            .zip(&posed)
+            .map(|(a, b)| (a - b).norm())
+            .fold(0.0, f64::max);
+        assert!(drift < 1e-3, "warm start drifted {drift} cm");
+    }
+}
