@@ -48,6 +48,31 @@ pub fn compact(triangles: &[[u32; 3]], vertex_count: usize) -> (Vec<[u32; 3]>, V
     (triangles, kept)
 }
 
+/// Like [`compact`], but the kept vertices in the order of their old indices (a subset's
+/// numbering that does not depend on the triangles' order): the new triangles and each new
+/// vertex's old index.
+pub fn compact_in_index_order(
+    triangles: &[[u32; 3]],
+    vertex_count: usize,
+) -> (Vec<[u32; 3]>, Vec<u32>) {
+    let mut map = vec![u32::MAX; vertex_count];
+    for &v in triangles.iter().flatten() {
+        map[v as usize] = 0;
+    }
+    let mut kept = Vec::new();
+    for (i, slot) in map.iter_mut().enumerate() {
+        if *slot == 0 {
+            *slot = kept.len() as u32;
+            kept.push(i as u32);
+        }
+    }
+    let triangles = triangles
+        .iter()
+        .map(|t| t.map(|v| map[v as usize]))
+        .collect();
+    (triangles, kept)
+}
+
 /// `values` of the kept vertices, in their new order (see [`compact`]).
 pub fn gather<T: Copy>(values: &[T], kept: &[usize]) -> Vec<T> {
     kept.iter().map(|&v| values[v]).collect()
@@ -64,6 +89,9 @@ mod tests {
         let (t, kept) = compact(&triangles, 6);
         assert_eq!(kept, vec![5, 2, 3, 1]);
         assert_eq!(t, vec![[0, 1, 2], [1, 0, 3]]);
+        let (by_index, kept_by_index) = compact_in_index_order(&triangles, 6);
+        assert_eq!(kept_by_index, vec![1, 2, 3, 5]);
+        assert_eq!(by_index, vec![[3, 1, 2], [1, 3, 0]]);
         assert_eq!(
             gather(&[10, 11, 12, 13, 14, 15], &kept),
             vec![15, 12, 13, 11]

@@ -15,6 +15,7 @@ use serde::{Deserialize, Serialize};
 use super::{Binding, FaceModel};
 use crate::contact::ContactError;
 use crate::contact::surface::{ContactBinding, FaceContact, NO_CELL, SurfaceParts};
+use crate::geometry::triangles::compact_in_index_order;
 use crate::rig::Region;
 
 /// Which part of the face takes part in contact.
@@ -120,25 +121,7 @@ impl FaceContact {
             .filter(|t| t.iter().all(|&v| chosen[v as usize]))
             .copied()
             .collect();
-        let mut used = vec![u32::MAX; render.rest.len()];
-        let mut render_vertices = Vec::new();
-        for t in &triangles {
-            for &v in t {
-                if used[v as usize] == u32::MAX {
-                    used[v as usize] = 0;
-                }
-            }
-        }
-        for (i, slot) in used.iter_mut().enumerate() {
-            if *slot == 0 {
-                *slot = render_vertices.len() as u32;
-                render_vertices.push(i as u32);
-            }
-        }
-        let faces: Vec<[u32; 3]> = triangles
-            .iter()
-            .map(|t| t.map(|v| used[v as usize]))
-            .collect();
+        let (faces, render_vertices) = compact_in_index_order(&triangles, render.rest.len());
         let bindings: Vec<ContactBinding> = render_vertices
             .iter()
             .map(|&r| match render.bindings[r as usize] {

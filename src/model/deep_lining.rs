@@ -37,6 +37,7 @@ use crate::contact::{
     BarrierPotential, Candidates, CcdOptions, Collisions, ContactError, ContactMesh, Projection,
     collision_free_step_over,
 };
+use crate::geometry::triangles::compact_in_index_order;
 use crate::rig::Region;
 use crate::sim::Quality;
 
@@ -172,23 +173,7 @@ impl DeepLining {
             })
             .copied()
             .collect();
-        let mut index = vec![u32::MAX; render.rest.len()];
-        let mut vertices = Vec::new();
-        for &v in triangles.iter().flatten() {
-            if index[v as usize] == u32::MAX {
-                index[v as usize] = 0;
-            }
-        }
-        for (i, slot) in index.iter_mut().enumerate() {
-            if *slot == 0 {
-                *slot = vertices.len() as u32;
-                vertices.push(i as u32);
-            }
-        }
-        let faces: Vec<[u32; 3]> = triangles
-            .iter()
-            .map(|t| t.map(|v| index[v as usize]))
-            .collect();
+        let (faces, vertices) = compact_in_index_order(&triangles, render.rest.len());
         let free: Vec<bool> = vertices.iter().map(|&v| free_render(v)).collect();
         let group: Vec<u16> = free
             .iter()
