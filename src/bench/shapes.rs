@@ -233,11 +233,8 @@ pub fn table(rows: &[ShapeRow]) -> String {
             (None, None) => "?".to_string(),
         };
         let solve = match &r.lining {
-            Some(l) if l.error.is_some() => {
-                format!(
-                    "**lining pass failed: {}**",
-                    l.error.as_deref().unwrap_or("")
-                )
+            Some(DeepLiningStats { error: Some(e), .. }) => {
+                format!("**lining pass failed: {e}**")
             }
             Some(l) if !l.converged => {
                 format!("**lining pass stopped short ({} steps)**", l.iterations)

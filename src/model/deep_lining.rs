@@ -214,11 +214,6 @@ impl DeepLining {
         candidates
     }
 
-    /// How many render vertices the pass moves.
-    pub fn free_count(&self) -> usize {
-        self.free.iter().filter(|&&f| f).count()
-    }
-
     /// Moves the free lining of `posed` (every render vertex, where the bindings put it) to
     /// where it crosses neither the teeth, the rest of the lining nor itself (module doc).
     /// It starts from `memory` (or from rest) and leaves its result there; on an error
@@ -289,12 +284,11 @@ impl DeepLining {
                 })
                 .sum()
         };
-        let collisions = Collisions::build(&self.mesh, x, self.dhat)?;
+        let mut collisions = Collisions::build(&self.mesh, x, self.dhat)?;
         let (mut kappa, kappa_max) = stiffness(self.dhat);
         let mut min_d2 = collisions.min_distance_squared();
         let mut stats = DeepLiningStats::default();
         let ccd = CcdOptions::default();
-        let mut collisions = collisions;
         for _ in 0..MAX_ITERATIONS {
             let barrier = BarrierPotential::new(self.dhat, kappa)?;
             let mut gradient: Vec<f64> = (0..3 * n)
