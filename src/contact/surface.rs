@@ -200,6 +200,7 @@ impl FaceContact {
             ContactMesh::with_groups(&rest, faces, group, &can_touch)?,
             &rest,
             dhat,
+            ATTACHED_AT_REST,
         )?;
         let (of_vertex, inside): (Vec<u32>, Vec<bool>) = of_vertex_inside.into_iter().unzip();
         let cells = Cells {
@@ -399,7 +400,8 @@ impl FaceContact {
 
 /// `mesh` with the pairs that are within d̂ at `rest` given their own activation distance:
 /// half their rest distance ([`CLOSE_PAIR_ACTIVATION`]), or 0 (attached: out of the barrier
-/// and CCD) for pairs closer than [`ATTACHED_AT_REST`]·d̂. Pairs within d̂ at rest are
+/// and CCD) for pairs closer than `attached_below`·d̂ (the solver's [`ATTACHED_AT_REST`]).
+/// Pairs within d̂ at rest are
 /// neighbours along a finely tessellated surface, or pieces the rig lays on each other (the
 /// lining on its gums, through its back teeth): their barrier acts only once they have closed
 /// half their rest gap.
@@ -407,13 +409,14 @@ pub fn with_rest_close_pairs(
     mesh: ContactMesh,
     rest: &[f64],
     dhat: f64,
+    attached_below: f64,
 ) -> Result<ContactMesh, ContactError> {
     let candidates = Candidates::build(&mesh, rest, dhat)?;
     let own = |kind: super::CollisionKind, ids: [u32; 4]| {
         let d = kind
             .distance_squared(&super::math::stencil(rest, ids))
             .sqrt();
-        (d < dhat).then_some(if d < ATTACHED_AT_REST * dhat {
+        (d < dhat).then_some(if d < attached_below * dhat {
             0.0
         } else {
             CLOSE_PAIR_ACTIVATION * d
