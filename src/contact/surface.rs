@@ -401,10 +401,9 @@ impl FaceContact {
 /// `mesh` with the pairs that are within d̂ at `rest` given their own activation distance:
 /// half their rest distance ([`CLOSE_PAIR_ACTIVATION`]), or 0 (attached: out of the barrier
 /// and CCD) for pairs closer than `attached_below`·d̂ (the solver's [`ATTACHED_AT_REST`]).
-/// Pairs within d̂ at rest are
-/// neighbours along a finely tessellated surface, or pieces the rig lays on each other (the
-/// lining on its gums, through its back teeth): their barrier acts only once they have closed
-/// half their rest gap.
+/// Pairs within d̂ at rest are neighbours along a finely tessellated surface, or pieces the
+/// rig lays on each other (the lining on its gums, through its back teeth): their barrier
+/// acts only once they have closed half their rest gap.
 pub fn with_rest_close_pairs(
     mesh: ContactMesh,
     rest: &[f64],

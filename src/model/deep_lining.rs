@@ -282,7 +282,6 @@ impl DeepLining {
                 expected: v as usize + 1,
             });
         }
-        let n = self.render.len();
         let target: Vec<f64> = self
             .render
             .iter()
@@ -300,7 +299,7 @@ impl DeepLining {
                 self.descend(x, &target, true, MAX_ITERATIONS, &mut descent, &mut stats)?;
         }
         stats.active_pairs = Collisions::build(&self.mesh, x, self.dhat)?.len();
-        for (i, &v) in self.render.iter().enumerate().take(n) {
+        for (i, &v) in self.render.iter().enumerate() {
             if self.free[i] {
                 let p = Point3::new(x[3 * i], x[3 * i + 1], x[3 * i + 2]);
                 stats.largest_push = stats.largest_push.max((p - posed[v as usize]).norm());
@@ -315,10 +314,10 @@ impl DeepLining {
     /// moves them as far toward it as CCD allows, then lets the free lining make way (a few
     /// Newton steps with the obstacles pinned), until the whole remaining move is clear; a
     /// round whose step is no longer than the last one's ends it with an error. Whether it
-    /// took more than one round (the free lining then needs to settle). The
-    /// stiff spring leaves the obstacles within `F/w` of `target`, but a free vertex the
-    /// barrier holds closer than that to one (a lining pressed between teeth and lip) would
-    /// be crossed by a single move.
+    /// took more than one round (the free lining then needs to settle). The stiff spring
+    /// leaves the obstacles within `F/w` of `target`, but a free vertex the barrier holds
+    /// closer than that to one (a lining pressed between teeth and lip) would be crossed by a
+    /// single move.
     fn put_obstacles_back(
         &self,
         x: &mut [f64],
