@@ -44,7 +44,10 @@ fn main() -> Result<()> {
         &face.model,
         &FaceContactSettings::default(),
     )?)?;
-    let settings = Quality::Interactive.settings();
+    let settings = facesim::sim::SolveSettings {
+        audit_crossings: true,
+        ..Quality::Interactive.settings()
+    };
     let mut state = sim.rest_state();
     let mut previous = BonePose::default();
     for (i, code) in random_codes(to, seed).iter().enumerate() {

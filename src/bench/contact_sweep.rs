@@ -255,7 +255,11 @@ pub fn sweep(
     let begin = std::time::Instant::now();
     let mut sim = model.simulator()?;
     sim.set_contact(FaceContact::new(model, &FaceContactSettings::default())?)?;
-    let on = quality.settings();
+    // The sweep is where the crossing audit runs on every frame.
+    let on = SolveSettings {
+        audit_crossings: true,
+        ..quality.settings()
+    };
     let off = SolveSettings {
         contact: false,
         ..on

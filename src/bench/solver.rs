@@ -83,6 +83,7 @@ pub fn bench_size(elements: usize, samples: usize) -> Result<SolverBenchRow, Sim
             max_iterations: 5000,
             history: 8,
             contact: true,
+            audit_crossings: true,
         },
     )?;
 

@@ -33,6 +33,7 @@ fn slab_frame() -> CanonicalFrame {
 fn tight() -> Stage2Settings {
     Stage2Settings {
         solve: SolveSettings {
+            audit_crossings: true,
             tolerance: 1e-11,
             max_iterations: 5000,
             history: 8,

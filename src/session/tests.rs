@@ -828,8 +828,9 @@ mod protocol_tests {
 }
 
 /// Contact in the session: on the sample's template with its basis, the lower lip rolled in
-/// at full weight solves with contact on to a valid frame with contact pairs reported (the
-/// solver's own crossing check passed), and switching contact off again reports none.
+/// at full weight solves with contact on to a valid frame with contact pairs reported and no
+/// crossing of the contact surface (checked here: the interactive solve does not audit), and
+/// switching contact off again reports none.
 #[test]
 fn contact_on_keeps_the_rolled_lips_apart_in_the_session() {
     let sample = crate::sample::Sample::load(
@@ -844,6 +845,17 @@ fn contact_on_keeps_the_rolled_lips_apart_in_the_session() {
     assert!(on.error.is_none(), "{:?}", on.error);
     assert!(on.stats.contacts.is_some_and(|c| c > 0), "{:?}", on.stats);
     assert!(on.positions.iter().flatten().all(|v| v.is_finite()));
+    let contact = crate::contact::surface::FaceContact::new(
+        &sample.faces[0].model,
+        &crate::model::contact_region::FaceContactSettings::default(),
+    )
+    .unwrap();
+    let y: Vec<f64> = contact
+        .render_vertices()
+        .iter()
+        .flat_map(|&v| on.positions[v as usize].map(f64::from))
+        .collect();
+    assert!(contact.new_crossings(&y).is_empty());
     let g = s.submit(Request::Contact(false)).unwrap();
     let off = s.wait_generation(g, WAIT).unwrap();
     assert_eq!(off.stats.contacts, None);

@@ -125,8 +125,11 @@ pub struct ContactStats {
     #[serde(default)]
     pub from_rest: bool,
     /// Edge–triangle crossings of the contact surface after the solve that were not there at
-    /// rest: always 0 in a returned result (anything else is [`super::SimError::Intersecting`]).
-    pub new_crossings: usize,
+    /// rest, when the solve audited them (`SolveSettings::audit_crossings`): always `Some(0)`
+    /// in a returned result (anything else is [`super::SimError::Intersecting`]); `None`
+    /// when not audited.
+    #[serde(default)]
+    pub new_crossings: Option<usize>,
     /// Candidate lists built (the rest of the steps reused one).
     pub candidate_builds: usize,
     /// Pairs that the step filter and the line-search barrier checked, summed over steps (the pairs
@@ -786,7 +789,10 @@ mod tests {
         let mut sim = model.simulator().unwrap();
         sim.set_contact(face).unwrap();
         sim.set_contact_gate(crate::sim::ContactGate::Always);
-        let settings = Quality::Preview.settings();
+        let settings = crate::sim::SolveSettings {
+            audit_crossings: true,
+            ..Quality::Preview.settings()
+        };
         let pose = |press: f64, jaw_open: f64| MouthPose {
             press,
             purse: 0.5,
@@ -824,7 +830,23 @@ mod tests {
         assert!(solve(&next, &mut cold).candidate_builds > 0);
         // The jaw moves on: the list built at the last pose serves the carried start and
         // the solve, and the result is crossing-free (checked by the solve).
-        assert_eq!(solve(&pose(0.303, 0.02), &mut state).new_crossings, 0);
+        assert_eq!(solve(&pose(0.303, 0.02), &mut state).new_crossings, Some(0));
+    }
+
+    /// The after-solve crossing check is an audit: an interactive solve leaves it out (its
+    /// steps and stages are certified), an audited one runs it and reports what it found.
+    #[test]
+    fn the_crossing_check_runs_only_when_audited() {
+        let (sim, mut state, act, bones, contact) = pressed_lips();
+        assert_eq!(contact.new_crossings, None);
+        assert_eq!(contact.check_time, std::time::Duration::ZERO);
+        let audited = crate::sim::SolveSettings {
+            audit_crossings: true,
+            ..Quality::Interactive.settings()
+        };
+        let stats = sim.solve(&act, &bones, &mut state, &audited).unwrap();
+        assert_eq!(stats.contact.unwrap().new_crossings, Some(0));
+        assert!(Quality::Final.settings().audit_crossings);
     }
 
     /// Where the last solve ended (the next frame's linearization), a start takes its active

@@ -225,6 +225,7 @@ impl Simulator {
             min_distance: collisions.min_distance_squared().sqrt(),
             stiffness: kappa,
             pose_stages: 1,
+            new_crossings: Some(0),
             gate: GateOutcome::Skipped,
             gate_time: start.elapsed(),
             ..ContactStats::default()

@@ -124,12 +124,40 @@ impl Simulator {
         (0..self.element_count())
             .into_par_iter()
             .with_min_len(512)
-            .map(|e| {
-                volume_step_limit(
-                    &self.deformation_gradient(x, e),
-                    &self.deformation_gradient(dx, e),
-                    STEP_VOLUME_KEPT,
-                )
+            .map(|e| self.element_path_limit(x, dx, e))
+            .collect()
+    }
+
+    fn element_path_limit(&self, x: &[f64], dx: &[f64], element: usize) -> f64 {
+        volume_step_limit(
+            &self.deformation_gradient(x, element),
+            &self.deformation_gradient(dx, element),
+            STEP_VOLUME_KEPT,
+        )
+    }
+
+    /// [`Simulator::element_path_limits`] of `dx` where `dx` differs from the move `base`
+    /// was computed for only at the vertices marked `moved`: the elements without such a
+    /// vertex keep their limit in `base` (exactly: their corners move alike).
+    fn element_path_limits_changed(
+        &self,
+        x: &[f64],
+        dx: &[f64],
+        base: &[f64],
+        moved: &[bool],
+    ) -> Vec<f64> {
+        use rayon::prelude::*;
+        self.mesh
+            .tets
+            .par_iter()
+            .with_min_len(512)
+            .enumerate()
+            .map(|(e, tet)| {
+                if tet.iter().any(|&v| moved[v as usize]) {
+                    self.element_path_limit(x, dx, e)
+                } else {
+                    base[e]
+                }
             })
             .collect()
     }
@@ -172,13 +200,16 @@ impl Simulator {
         let mut marked = vec![false; self.element_count()];
         let mut dx = carried.to_vec();
         let mut first_hits = None;
+        // The plain carry's limits; a round recomputes only the elements its clusters touch.
+        let carried_limits = self.element_path_limits(x, carried);
         for _ in 0..PATH_FIT_ROUNDS {
             // Rigid clusters until no element is over the volume limit (cheap rounds: no CCD).
             let mut fits = false;
             for _ in 0..VOLUME_FIT_ROUNDS {
                 dx.copy_from_slice(carried);
                 clusters.apply(x, carried, &bone_motions, &mut dx);
-                let limits = self.element_path_limits(x, &dx);
+                let limits =
+                    self.element_path_limits_changed(x, &dx, &carried_limits, &clusters.used);
                 let mut grew = false;
                 let mut over = 0;
                 for (e, _) in limits.iter().enumerate().filter(|(_, l)| **l < 1.0) {
@@ -330,13 +361,13 @@ impl Simulator {
             }
             // Failing that, where the linear prediction would squeeze some element past the
             // volume barrier's step limit, carry the tissue only that far (the solve does the
-            // rest).
+            // rest). (A carry within the limit had its path checked by the fit's first round.)
             let volume = self.volume_path_limit(x, &dx);
-            if volume < 1.0 {
+            if volume > 0.0 && volume < 1.0 {
                 dx.iter_mut().for_each(|v| *v *= CARRY_SHORTENING * volume);
-            }
-            if volume > 0.0 && self.stage_path_free(carrier, x, Some(&dx), b, gap)? {
-                return Ok(Some(StageStart::Carried(dx)));
+                if self.stage_path_free(carrier, x, Some(&dx), b, gap)? {
+                    return Ok(Some(StageStart::Carried(dx)));
+                }
             }
         }
         if self.stage_path_free(carrier, x, None, b, gap)? {
@@ -596,6 +627,36 @@ mod tests {
     /// Clusters merge through shared vertices and keep the bone they were joined with (none
     /// when joined with both); a cluster with no bone gets the rigid motion its carried
     /// displacements make, exactly when they are one.
+    /// A fit round's limits, recomputed only where its clusters changed the move, equal the
+    /// limits of the whole move.
+    #[test]
+    fn limits_recomputed_where_the_move_changed_equal_the_whole_moves() {
+        let model = crate::model::test_support::coarse_face(None);
+        let sim = model.simulator().unwrap();
+        let x = sim.rest_state().x;
+        // A squeeze toward the centre (some elements past the limit) as the plain carry.
+        let carried: Vec<f64> = x
+            .iter()
+            .enumerate()
+            .map(|(i, v)| -0.6 * v * ((i % 3) as f64 * 0.3 + 0.4))
+            .collect();
+        let base = sim.element_path_limits(&x, &carried);
+        assert!(
+            base.iter().any(|&l| l < 1.0),
+            "the test needs limited elements"
+        );
+        let mut moved = vec![false; sim.vertex_count()];
+        let mut dx = carried.clone();
+        for v in (0..sim.vertex_count()).step_by(7) {
+            moved[v] = true;
+            dx[3 * v..3 * v + 3].copy_from_slice(&[0.01, -0.02, 0.005]);
+        }
+        assert_eq!(
+            sim.element_path_limits_changed(&x, &dx, &base, &moved),
+            sim.element_path_limits(&x, &dx)
+        );
+    }
+
     #[test]
     fn clusters_merge_and_move_rigidly() {
         let mut c = Clusters::new(8);

@@ -27,6 +27,7 @@ pub(crate) fn small_simulator() -> Simulator {
 
 fn tight() -> SolveSettings {
     SolveSettings {
+        audit_crossings: true,
         tolerance: 1e-11,
         max_iterations: 5000,
         history: 8,
@@ -146,6 +147,7 @@ fn energy_never_increases_along_iterations() {
     for history in [0, 5] {
         let mut state = sim.rest_state();
         let settings = SolveSettings {
+            audit_crossings: true,
             tolerance: 1e-9,
             max_iterations: 3000,
             history,
@@ -189,6 +191,7 @@ fn lbfgs_needs_fewer_iterations_than_plain_projective_dynamics() {
             &BonePose::default(),
             &mut state,
             &SolveSettings {
+                audit_crossings: true,
                 tolerance: 1e-8,
                 max_iterations: 5000,
                 history,
@@ -219,6 +222,7 @@ fn deformed_state(sim: &Simulator, scene: &SlabScene, rng: &mut ChaCha8Rng) -> S
     // One local sweep sets consistent rotations for the warm start.
     let act = identity(sim.element_count());
     let settings = SolveSettings {
+        audit_crossings: true,
         tolerance: 0.0,
         max_iterations: 0,
         history: 0,

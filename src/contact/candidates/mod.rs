@@ -264,7 +264,7 @@ impl Candidates {
 }
 
 /// Trees over every edge and every face of a surface, laid out once (e.g. at rest) and refit
-/// at each query: the after-solve crossing check runs on every solve, and building a fresh
+/// at each query: the after-solve crossing audit runs on every audited solve, and building a fresh
 /// tree and querying it edge by edge cost as much as a candidate build.
 #[derive(Clone, Debug)]
 pub(crate) struct EdgeFaceLayouts {
