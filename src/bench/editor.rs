@@ -27,6 +27,9 @@ pub struct LatencyRow {
     pub p95_ms: f64,
     /// Median solver iterations per frame.
     pub median_iterations: usize,
+    /// Median contact candidate lists built per frame (`None` with contact off): how often a
+    /// frame re-detected contact pairs over the region.
+    pub median_lists: Option<usize>,
     /// Frames whose solve failed (reported, never hidden).
     pub errors: usize,
 }
@@ -66,7 +69,8 @@ pub fn bench_latency(
             seconds: FRAME_TIMEOUT_S,
         };
         session.wait_newer(None, timeout).ok_or_else(timed_out)?;
-        let (mut ms, mut iterations, mut errors) = (Vec::new(), Vec::new(), 0);
+        let (mut ms, mut iterations, mut lists, mut errors) =
+            (Vec::new(), Vec::new(), Vec::new(), 0);
         for slider in sliders {
             for code in drag(slider, steps) {
                 let start = Instant::now();
@@ -74,11 +78,13 @@ pub fn bench_latency(
                 let frame = session.wait_generation(g, timeout).ok_or_else(timed_out)?;
                 ms.push(start.elapsed().as_secs_f64() * 1e3);
                 iterations.push(frame.stats.iterations);
+                lists.extend(frame.stats.contact_lists);
                 errors += usize::from(frame.error.is_some());
             }
         }
         ms.sort_by(f64::total_cmp);
         iterations.sort_unstable();
+        lists.sort_unstable();
         rows.push(LatencyRow {
             face: name.clone(),
             quality,
@@ -87,6 +93,7 @@ pub fn bench_latency(
             median_ms: percentile(&ms, 0.5),
             p95_ms: percentile(&ms, 0.95),
             median_iterations: iterations[iterations.len() / 2],
+            median_lists: (!lists.is_empty()).then(|| lists[lists.len() / 2]),
             errors,
         });
     }
@@ -104,9 +111,10 @@ pub fn table(rows: &[LatencyRow]) -> String {
             "median ms",
             "p95 ms",
             "median iterations",
+            "median lists built",
             "failed",
         ],
-        "lllrrrrr",
+        "lllrrrrrr",
     );
     for r in rows {
         t.row([
@@ -117,6 +125,7 @@ pub fn table(rows: &[LatencyRow]) -> String {
             format!("{:.1}", r.median_ms),
             format!("{:.1}", r.p95_ms),
             r.median_iterations.to_string(),
+            r.median_lists.map_or("-".into(), |n| n.to_string()),
             r.errors.to_string(),
         ]);
     }
@@ -141,17 +150,16 @@ mod tests {
         let face = crate::session::tests::test_face("neutral");
         let rows = bench_latency(face, &Quality::ALL, &["jawOpen"], 4, false).unwrap();
         assert_eq!(rows.len(), 3);
-        assert!(
-            rows.iter()
-                .all(|r| r.samples == 4 && r.errors == 0 && r.median_ms > 0.0)
-        );
+        assert!(rows.iter().all(|r| r.samples == 4
+            && r.errors == 0
+            && r.median_ms > 0.0
+            && r.median_lists.is_none()));
         assert!(table(&rows).contains("| neutral | interactive | off | 4 |"));
     }
 
-    /// With contact on, every frame of the drag comes back valid (the solver's crossing
-    /// check passed) and the rows say contact was on. The editor's own preset only: contact
-    /// on the format-3 face costs seconds a frame at the others (see
-    /// docs/performance/contact.md).
+    /// With contact on, every frame of the drag comes back valid and the rows say contact was
+    /// on, with the lists each frame built. The editor's own preset only: contact on the
+    /// format-3 face costs seconds a frame at the others (see docs/performance/contact.md).
     #[test]
     fn latency_rows_with_contact_on() {
         let face = crate::session::tests::test_face("neutral");
@@ -160,7 +168,7 @@ mod tests {
         assert_eq!(rows.len(), 1);
         assert!(
             rows.iter()
-                .all(|r| r.contact && r.samples == 4 && r.errors == 0)
+                .all(|r| r.contact && r.samples == 4 && r.errors == 0 && r.median_lists.is_some())
         );
         assert!(table(&rows).contains("| neutral | interactive | on | 4 |"));
     }

@@ -36,6 +36,10 @@ pub struct FrameStats {
     /// equilibrium with contact (see `sim::contact_gate`).
     #[serde(default)]
     pub contact_skipped: bool,
+    /// Contact candidate lists (Verlet lists over the contact region) the solve built: the
+    /// re-detections a frame paid for (`None`: no contact solve ran).
+    #[serde(default)]
+    pub contact_lists: Option<usize>,
     /// No solve ran: the inputs were those the face's state was already solved for (a
     /// display change, a repeated slider value), so the frame reuses that solve.
     #[serde(default)]
@@ -58,6 +62,7 @@ impl FrameStats {
             total_ms,
             contacts: stats.contact.as_ref().map(|c| c.active_pairs),
             contact_skipped: stats.contact.as_ref().is_some_and(|c| c.gate.skipped()),
+            contact_lists: stats.contact.as_ref().map(|c| c.candidate_builds),
             reused: false,
             lining: None,
         }

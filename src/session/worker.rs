@@ -686,6 +686,7 @@ impl Worker {
                 total_ms: 0.0,
                 contacts: None,
                 contact_skipped: false,
+                contact_lists: None,
                 reused: false,
                 lining: None,
             },
