@@ -4,7 +4,8 @@
 //! asks for), beside the same drag on the embedded session.
 //!
 //! One session serves all three in turn (refinement off, so each step's frame is the one the
-//! step asked for). A remote step is `set_codes`, then `get_frame` until the frame of that
+//! step asked for; contact off, so the frame's solve is the few milliseconds that leave the
+//! transport's cost to be seen). A remote step is `set_codes`, then `get_frame` until the frame of that
 //! request has arrived and been decoded (binary: normals rebuilt), as the editor's client
 //! does. Bytes are those of the reply as sent: the JSON line, and the binary payload after it.
 //! Loopback has no bandwidth limit, so on a network the bytes matter more than these times.
@@ -60,7 +61,7 @@ pub fn bench_remote(
     steps: usize,
 ) -> Result<Vec<RemoteRow>, RemoteBenchError> {
     let session = Arc::new(Session::new(vec![face], quality)?);
-    session.submit(Request::Refine(false))?;
+    session.submit_all(&[Request::Refine(false), Request::Contact(false)])?;
     let timed_out = || SessionError::TimedOut {
         seconds: WAIT.as_secs(),
     };

@@ -301,7 +301,10 @@ fn the_report_marks_unconverged_and_crossing_frames() {
     let model = face.model.clone();
     let session = Session::new(vec![face], Quality::Interactive).unwrap();
     let generation = session
-        .submit(Request::Codes(short_track().sample(0.3).unwrap()))
+        .submit_all(&[
+            Request::Contact(false),
+            Request::Codes(short_track().sample(0.3).unwrap()),
+        ])
         .unwrap();
     let frame = session
         .wait_generation(generation, std::time::Duration::from_secs(60))

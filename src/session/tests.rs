@@ -100,9 +100,12 @@ pub(crate) fn test_face(name: &str) -> SessionFace {
     }
 }
 
+/// A session on the test double's faces, contact off: these tests are about the session's
+/// frames, requests and protocol (the contact tests below turn it on).
 fn session(quality: Quality, refine: bool) -> Session {
     let s = Session::new(vec![test_face("neutral"), test_face("other")], quality).unwrap();
-    s.submit(Request::Refine(refine)).unwrap();
+    s.submit_all(&[Request::Refine(refine), Request::Contact(false)])
+        .unwrap();
     s
 }
 
@@ -827,10 +830,10 @@ mod protocol_tests {
     }
 }
 
-/// Contact in the session: on the sample's template with its basis, the lower lip rolled in
-/// at full weight solves with contact on to a valid frame with contact pairs reported and no
-/// crossing of the contact surface (checked here: the interactive solve does not audit), and
-/// switching contact off again reports none.
+/// Contact in the session: a session opens with contact on, and on the sample's template
+/// with its basis the lower lip rolled in at full weight solves to a valid frame with contact
+/// pairs reported and no crossing of the contact surface (checked here: the interactive solve
+/// does not audit); switching contact off reports none.
 #[test]
 fn contact_on_keeps_the_rolled_lips_apart_in_the_session() {
     let sample = crate::sample::Sample::load(
@@ -838,8 +841,8 @@ fn contact_on_keeps_the_rolled_lips_apart_in_the_session() {
     )
     .unwrap();
     let s = Session::new(sample.session_faces()[..1].to_vec(), Quality::Interactive).unwrap();
+    assert!(s.inputs().contact, "a session opens with contact on");
     s.submit(Request::Refine(false)).unwrap();
-    s.submit(Request::Contact(true)).unwrap();
     let g = s.submit(expression("mouthRollLower", 1.0)).unwrap();
     let on = s.wait_generation(g, WAIT).unwrap();
     assert!(on.error.is_none(), "{:?}", on.error);

@@ -51,7 +51,7 @@ pub struct Inputs {
     pub refine: bool,
     pub display: Display,
     /// Lip and teeth contact in the solve (IPC barrier, collision-checked steps): lips never
-    /// cross, at several times the cost of a contact-free frame.
+    /// cross, at several times the cost of a contact-free frame. On when a session opens.
     #[serde(default)]
     pub contact: bool,
 }
@@ -174,7 +174,7 @@ impl Session {
             quality,
             refine: true,
             display: Display::default(),
-            contact: false,
+            contact: true,
         };
         let shared = Arc::new(Shared {
             pending: Mutex::new(Pending {

@@ -225,24 +225,30 @@ fn at_full_jaw_opening_the_mouth_shows_the_teeth() {
     );
 }
 
-/// The timeline's track keeps the artist's contact setting, so `facesim export` renders it
-/// with contact as it was edited.
+/// The editor opens with contact on, and the timeline's track keeps the artist's contact
+/// setting, so `facesim export` renders it as it was edited.
 #[test]
 fn a_saved_track_keeps_the_contact_setting() {
     let session: Arc<dyn SessionHandle> =
         Arc::new(Session::new(sample(), Quality::Interactive).unwrap());
     let mut harness = editor(&session);
     wait_for(&mut harness, |app| app.last_frame.is_some());
+    assert!(session.inputs().contact, "the editor opens with contact on");
     let path = std::env::temp_dir().join(format!("facesim-track-ui-{}.json", std::process::id()));
     harness.state_mut().timeline.path = path.display().to_string();
-    harness.get_by_label("lip and teeth contact").click();
-    harness.run_steps(2);
+    let saved_contact = |harness: &mut Harness<'_, EditorApp>| {
+        harness.get_by_label("save").click();
+        harness.run_steps(2);
+        facesim::session::track::Track::load(&path)
+            .expect("the saved track")
+            .contact
+    };
     harness.get_by_label("key").click();
     harness.run_steps(2);
-    harness.get_by_label("save").click();
+    assert_eq!(saved_contact(&mut harness), Some(true));
+    harness.get_by_label("lip and teeth contact").click();
     harness.run_steps(2);
-    let track = facesim::session::track::Track::load(&path).expect("the saved track");
-    assert_eq!(track.contact, Some(true));
-    assert_eq!(track.keys.len(), 1);
+    assert!(!session.inputs().contact);
+    assert_eq!(saved_contact(&mut harness), Some(false));
     std::fs::remove_file(&path).unwrap();
 }
