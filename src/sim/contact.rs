@@ -120,8 +120,8 @@ pub struct ContactStats {
     /// moved only the teeth; see [`super::staging`]).
     #[serde(default)]
     pub carried_stages: usize,
-    /// Whether the bone pose could not be reached from the starting state and the solve
-    /// started over from rest ([`super::SimError::PoseUnreachable`]).
+    /// Whether the solve started over from rest: the bone pose lay nearer rest than the
+    /// starting state's, or could not be reached from it ([`super::SimError::PoseUnreachable`]).
     #[serde(default)]
     pub from_rest: bool,
     /// Edge–triangle crossings of the contact surface after the solve that were not there at

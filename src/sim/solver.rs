@@ -318,6 +318,27 @@ const STAGE_ITERATIONS: usize = 10;
 /// The pose a fraction `s` of the way from `a` to `b` (parameters interpolated linearly);
 /// exactly `b` at `s = 1` (so a solved state records the very pose it was asked for, and the
 /// next solve at that pose moves nothing).
+/// Whether the bone pose `to` lies nearer the rest pose than `from` does: the largest move of
+/// a contact vertex the bones carry (the teeth) from rest to `to` is shorter than from `from`.
+fn nearer_rest(model: &ContactModel, from: &BonePose, to: &BonePose) -> bool {
+    let face = &model.face;
+    // Any tissue positions: the tissue's vertices land alike under the three poses.
+    let x = vec![0.0; 3 * face.sim_vertex_count()];
+    let place = |pose: &BonePose| {
+        let mut y = vec![0.0; 3 * face.vertex_count()];
+        face.positions(&x, pose, &mut y);
+        y
+    };
+    let (at_to, at_from, at_rest) = (place(to), place(from), place(&BonePose::default()));
+    let farthest = |a: &[f64], b: &[f64]| {
+        a.chunks_exact(3)
+            .zip(b.chunks_exact(3))
+            .map(|(p, q)| (0..3).map(|k| (p[k] - q[k]).powi(2)).sum::<f64>())
+            .fold(0.0, f64::max)
+    };
+    farthest(&at_to, &at_rest) < farthest(&at_to, &at_from)
+}
+
 fn lerp_pose(a: &BonePose, b: &BonePose, s: f64) -> BonePose {
     if s == 1.0 {
         return *b;
@@ -425,6 +446,17 @@ impl Simulator {
             stats.wall_time = start.elapsed();
             return Ok(stats);
         };
+        let toward_rest = !self.at_rest(state) && nearer_rest(model, &state.bones, bones);
+        if toward_rest {
+            // A jump back toward rest (the editor's reset, a slider released from far) starts
+            // there: its pose stages from the last frame close the jaw onto the lips, which
+            // certifies only in short stages at seconds apiece (the neutral's jump from
+            // jawOpen 1 back to rest took 52 s that way), and from rest the solve is short.
+            *state = SimState {
+                gate_backoff: state.gate_backoff,
+                ..self.rest_state()
+            };
+        }
         // Contact only when the surfaces can meet: a certified contact-free result is the
         // equilibrium with contact too (see `contact_gate`).
         let (gate, attempt_time) = match model.gate {
@@ -465,6 +497,9 @@ impl Simulator {
             };
         match result {
             Ok(mut stats) => {
+                if let Some(c) = stats.contact.as_mut() {
+                    c.from_rest |= toward_rest;
+                }
                 note_refusal(&mut stats, gate, attempt_time);
                 stats.wall_time = start.elapsed();
                 Ok(stats)
@@ -532,8 +567,13 @@ impl Simulator {
         let mut stages = 0;
         let mut carried_stages = 0;
         let mut staging = Duration::ZERO;
+        // The next stage's first try: the rest of the swing, or twice the last stage when
+        // that had to be shortened (a refused try costs the CCD of its whole path: on the
+        // neutral's jump from jawOpen 1 back to rest, the tries of the whole remainder after
+        // each shortened stage took 1–15 s apiece).
+        let mut span: f64 = 1.0;
         loop {
-            let mut s = 1.0;
+            let mut s = (reached + span).min(1.0);
             let here = lerp_pose(&from, bones, reached);
             // Only a pose change moves anything (an unchanged jaw needs no broad phase here).
             let staging_start = Instant::now();
@@ -621,6 +661,7 @@ impl Simulator {
             if s == 1.0 {
                 break;
             }
+            span = 2.0 * (s - reached);
             reached = s;
         }
         let mut stats = total.expect("at least one stage ran");
