@@ -315,9 +315,6 @@ pub(crate) const SHORTEST_WARM_STAGE: f64 = 1e-3;
 /// Iteration cap of an intermediate pose stage (the last one gets the preset's).
 const STAGE_ITERATIONS: usize = 10;
 
-/// The pose a fraction `s` of the way from `a` to `b` (parameters interpolated linearly);
-/// exactly `b` at `s = 1` (so a solved state records the very pose it was asked for, and the
-/// next solve at that pose moves nothing).
 /// Whether the bone pose `to` lies nearer the rest pose than `from` does: the largest move of
 /// a contact vertex the bones carry (the teeth) from rest to `to` is shorter than from `from`.
 fn nearer_rest(model: &ContactModel, from: &BonePose, to: &BonePose) -> bool {
@@ -339,6 +336,9 @@ fn nearer_rest(model: &ContactModel, from: &BonePose, to: &BonePose) -> bool {
     farthest(&at_to, &at_rest) < farthest(&at_to, &at_from)
 }
 
+/// The pose a fraction `s` of the way from `a` to `b` (parameters interpolated linearly);
+/// exactly `b` at `s = 1` (so a solved state records the very pose it was asked for, and the
+/// next solve at that pose moves nothing).
 fn lerp_pose(a: &BonePose, b: &BonePose, s: f64) -> BonePose {
     if s == 1.0 {
         return *b;
