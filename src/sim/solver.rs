@@ -465,6 +465,9 @@ impl Simulator {
                 match self.try_contact_free(model, &frame, bones, state, settings)? {
                     Attempt::Accepted(stats) => {
                         let mut stats = *stats;
+                        if let Some(c) = stats.contact.as_mut() {
+                            c.from_rest |= toward_rest;
+                        }
                         stats.wall_time = start.elapsed();
                         return Ok(stats);
                     }
