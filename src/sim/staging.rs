@@ -585,6 +585,18 @@ mod tests {
         (sim, face.actuation)
     }
 
+    /// The sample face's actuation for jawOpen alone at `open`.
+    fn jaw_open(
+        actuation: &dyn crate::drive::ActuationModel,
+        open: f64,
+    ) -> crate::drive::Actuation {
+        let codes = crate::drive::Codes {
+            expression: crate::rig::ExpressionCode::single("jawOpen", open).unwrap(),
+            ..Default::default()
+        };
+        actuation.actuate(&codes).unwrap()
+    }
+
     /// Checked independently of the solver's own final check: the solved state crosses no
     /// contact surface (every pair checked) and folds no element.
     fn assert_crossing_and_fold_free(sim: &Simulator, state: &crate::sim::SimState, frame: usize) {
@@ -630,9 +642,6 @@ mod tests {
         }
     }
 
-    /// Clusters merge through shared vertices and keep the bone they were joined with (none
-    /// when joined with both); a cluster with no bone gets the rigid motion its carried
-    /// displacements make, exactly when they are one.
     /// A fit round's limits, recomputed only where its clusters changed the move, equal the
     /// limits of the whole move.
     #[test]
@@ -663,6 +672,9 @@ mod tests {
         );
     }
 
+    /// Clusters merge through shared vertices and keep the bone they were joined with (none
+    /// when joined with both); a cluster with no bone gets the rigid motion its carried
+    /// displacements make, exactly when they are one.
     #[test]
     fn clusters_merge_and_move_rigidly() {
         let mut c = Clusters::new(8);
@@ -827,14 +839,10 @@ mod tests {
     fn unreachable_pose_is_solved_from_rest() {
         let (mut sim, actuation) = sample_sim();
         let settings = Quality::Interactive.settings();
-        let jaw = |open: f64| {
-            let codes = crate::drive::Codes {
-                expression: crate::rig::ExpressionCode::single("jawOpen", open).unwrap(),
-                ..Default::default()
-            };
-            actuation.actuate(&codes).unwrap()
-        };
-        let (open, partly) = (jaw(1.0), jaw(0.6));
+        let (open, partly) = (
+            jaw_open(actuation.as_ref(), 1.0),
+            jaw_open(actuation.as_ref(), 0.6),
+        );
         let mut opened = sim.rest_state();
         sim.solve(&open.tensors, &open.bones(), &mut opened, &settings)
             .unwrap();
@@ -874,11 +882,7 @@ mod tests {
         let (sim, actuation) = sample_sim();
         let settings = Quality::Interactive.settings();
         let solve = |state: &mut crate::sim::SimState, open: f64| {
-            let codes = crate::drive::Codes {
-                expression: crate::rig::ExpressionCode::single("jawOpen", open).unwrap(),
-                ..Default::default()
-            };
-            let a = actuation.actuate(&codes).unwrap();
+            let a = jaw_open(actuation.as_ref(), open);
             sim.solve(&a.tensors, &a.bones(), state, &settings).unwrap()
         };
         let mut state = sim.rest_state();

@@ -236,19 +236,18 @@ fn a_saved_track_keeps_the_contact_setting() {
     assert!(session.inputs().contact, "the editor opens with contact on");
     let path = std::env::temp_dir().join(format!("facesim-track-ui-{}.json", std::process::id()));
     harness.state_mut().timeline.path = path.display().to_string();
-    let saved_contact = |harness: &mut Harness<'_, EditorApp>| {
+    let saved = |harness: &mut Harness<'_, EditorApp>| {
         harness.get_by_label("save").click();
         harness.run_steps(2);
-        facesim::session::track::Track::load(&path)
-            .expect("the saved track")
-            .contact
+        let track = facesim::session::track::Track::load(&path).expect("the saved track");
+        (track.contact, track.keys.len())
     };
     harness.get_by_label("key").click();
     harness.run_steps(2);
-    assert_eq!(saved_contact(&mut harness), Some(true));
+    assert_eq!(saved(&mut harness), (Some(true), 1));
     harness.get_by_label("lip and teeth contact").click();
     harness.run_steps(2);
     assert!(!session.inputs().contact);
-    assert_eq!(saved_contact(&mut harness), Some(false));
+    assert_eq!(saved(&mut harness), (Some(false), 1));
     std::fs::remove_file(&path).unwrap();
 }
