@@ -62,14 +62,21 @@ fn main() -> Result<()> {
                 Ok(s) => {
                     let c = s.contact.as_ref();
                     println!(
-                        "frame {i}: ok ({:?}), {} stages ({} carried), {} iterations, {:.2} s, \
-                         gate {:?}, {jaw}",
+                        "frame {i}: ok ({:?}), {} stages ({} carried), {} iterations, {:.2} s \
+                         (staging {:.2} s, broad phase {:.2} s, barrier {:.2} s, filter {:.2} s, linear {:.2} s), from rest {}, gate {:?}, smallest volume ratio {:.1e}, {jaw}",
                         s.termination,
                         c.map_or(0, |c| c.pose_stages),
                         c.map_or(0, |c| c.carried_stages),
                         s.iterations,
                         s.wall_time.as_secs_f64(),
+                        c.map_or(0.0, |c| c.staging_time.as_secs_f64()),
+                        c.map_or(0.0, |c| c.broad_phase_time.as_secs_f64()),
+                        c.map_or(0.0, |c| c.barrier_time.as_secs_f64()),
+                        c.map_or(0.0, |c| c.filter_time.as_secs_f64()),
+                        c.map_or(0.0, |c| c.linear_time.as_secs_f64()),
+                        c.is_some_and(|c| c.from_rest),
                         c.map(|c| c.gate),
+                        smallest_volume_ratio(sim.mesh(), state.flat_positions()),
                     );
                 }
                 Err(facesim::sim::SimError::Intersecting { count, stats }) => {
@@ -91,4 +98,17 @@ fn main() -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// The smallest `det F` (volume over rest volume) of any element at `x` (interleaved).
+fn smallest_volume_ratio(mesh: &facesim::geometry::tet_mesh::TetMesh, x: &[f64]) -> f64 {
+    let at = |v: u32| nalgebra::Vector3::from_column_slice(&x[3 * v as usize..3 * v as usize + 3]);
+    mesh.tets
+        .iter()
+        .enumerate()
+        .map(|(e, t)| {
+            let (a, b, c, d) = (at(t[0]), at(t[1]), at(t[2]), at(t[3]));
+            (b - a).dot(&(c - a).cross(&(d - a))) / 6.0 / mesh.signed_volume(e)
+        })
+        .fold(f64::INFINITY, f64::min)
 }

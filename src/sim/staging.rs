@@ -118,6 +118,20 @@ impl Simulator {
             .fold(1.0, f64::min)
     }
 
+    /// Whether every element keeps a positive volume at `x + dx`, rounded as the stage will
+    /// start there. The volume limit certifies the path in exact arithmetic, but an element
+    /// that earlier solves crushed to `det F` ~10⁻¹⁴ can still round to a fold: seed 101's
+    /// frame 15 of the random-code sweep, with one-iteration intermediate stages, carried one
+    /// from 1.3·10⁻¹⁴ to −4.9·10⁻¹⁵ and the frame failed ([`SimError::FoldedStart`]).
+    fn starts_unfolded(&self, x: &[f64], dx: &[f64]) -> bool {
+        use rayon::prelude::*;
+        let moved: Vec<f64> = x.iter().zip(dx).map(|(p, d)| p + d).collect();
+        (0..self.element_count())
+            .into_par_iter()
+            .with_min_len(512)
+            .all(|e| self.deformation_gradient(&moved, e).determinant() > 0.0)
+    }
+
     /// [`Simulator::volume_path_limit`] per element.
     fn element_path_limits(&self, x: &[f64], dx: &[f64]) -> Vec<f64> {
         use rayon::prelude::*;
@@ -357,7 +371,9 @@ impl Simulator {
         if dx.iter().all(|v| v.is_finite()) {
             // The carry as predicted, or with what keeps it from being certified moved
             // rigidly instead.
-            if let Some(fitted) = self.fitted_carry(carrier, x, &dx, b, gap)? {
+            if let Some(fitted) = self.fitted_carry(carrier, x, &dx, b, gap)?
+                && self.starts_unfolded(x, &fitted)
+            {
                 return Ok(Some(StageStart::Carried(fitted)));
             }
             // Failing that, where the linear prediction would squeeze some element past the
@@ -366,7 +382,9 @@ impl Simulator {
             let volume = self.volume_path_limit(x, &dx);
             if volume > 0.0 && volume < 1.0 {
                 dx.iter_mut().for_each(|v| *v *= CARRY_SHORTENING * volume);
-                if self.stage_path_free(carrier, x, Some(&dx), b, gap)? {
+                if self.starts_unfolded(x, &dx)
+                    && self.stage_path_free(carrier, x, Some(&dx), b, gap)?
+                {
                     return Ok(Some(StageStart::Carried(dx)));
                 }
             }
@@ -672,6 +690,31 @@ mod tests {
         );
     }
 
+    /// A carry that would start a stage with an element folded is refused, also when the
+    /// element is only crushed through rounding (`det F` ~10⁻¹⁵ below zero); a carry that
+    /// keeps every element's volume positive is not.
+    #[test]
+    fn a_carry_that_starts_folded_is_refused() {
+        let sim = crate::sim::tests::small_simulator();
+        let x = sim.rest_state().x;
+        let none = vec![0.0; x.len()];
+        assert!(sim.starts_unfolded(&x, &none));
+        // Move one corner of element 0 onto the plane of the other three and a hair past it.
+        let tet = sim.mesh().tets[0].map(|v| v as usize);
+        let at = |v: usize| nalgebra::Vector3::from_column_slice(&x[3 * v..3 * v + 3]);
+        let (p, a, b, c) = (at(tet[0]), at(tet[1]), at(tet[2]), at(tet[3]));
+        let normal = (b - a).cross(&(c - a)).normalize();
+        let height = (p - a).dot(&normal);
+        for past in [1e-12, 0.5] {
+            let mut dx = none.clone();
+            let push = -normal * (height + past * height.signum());
+            dx[3 * tet[0]..3 * tet[0] + 3].copy_from_slice(push.as_slice());
+            assert!(!sim.starts_unfolded(&x, &dx), "pushed {past} past the face");
+            let halfway: Vec<f64> = dx.iter().map(|d| 0.5 * d).collect();
+            assert!(sim.starts_unfolded(&x, &halfway));
+        }
+    }
+
     /// Clusters merge through shared vertices and keep the bone they were joined with (none
     /// when joined with both); a cluster with no bone gets the rigid motion its carried
     /// displacements make, exactly when they are one.
@@ -795,7 +838,8 @@ mod tests {
     /// from frame 9 and failed with "more than 64 collision-free stages" after ~40 s (each
     /// carry was shortened to a few percent by nearly collapsed elements; see
     /// [`super::Simulator::fitted_carry`]). Every frame must now solve crossing- and
-    /// fold-free, frame 10 in few stages.
+    /// fold-free, frame 10 in few stages (14 when intermediate stages ran 10 iterations, 18
+    /// with today's 3: less relaxed stages are shorter, and each costs less).
     #[test]
     fn seed_7_sweep_solves_its_large_jaw_swing() {
         let (sim, actuation) = sample_sim();
@@ -806,7 +850,7 @@ mod tests {
                 stats.wall_time.as_secs_f64()
             );
             if frame == 10 {
-                assert!(c <= 16, "frame 10: {c} stages");
+                assert!(c <= 24, "frame 10: {c} stages");
             }
         });
     }
