@@ -104,8 +104,12 @@ pub(crate) fn test_face(name: &str) -> SessionFace {
 /// frames, requests and protocol (the contact tests below turn it on).
 fn session(quality: Quality, refine: bool) -> Session {
     let s = Session::new(vec![test_face("neutral"), test_face("other")], quality).unwrap();
-    s.submit_all(&[Request::Refine(refine), Request::Contact(false)])
+    // Its frames from here on are of these inputs (a session opens with contact on, and its
+    // first frame may come before they arrive).
+    let g = s
+        .submit_all(&[Request::Refine(refine), Request::Contact(false)])
         .unwrap();
+    s.wait_generation(g, WAIT).unwrap();
     s
 }
 
@@ -925,9 +929,12 @@ fn sample_faces() -> Vec<SessionFace> {
 #[test]
 fn a_solve_without_equilibrium_is_an_error_frame_and_a_capped_one_is_marked() {
     let s = Session::new(sample_faces(), Quality::Final).unwrap();
-    s.submit_all(&[Request::Refine(false), Request::Contact(false)])
+    // The frame of these inputs (a session opens with contact on, and its first frame may
+    // come before they arrive).
+    let g = s
+        .submit_all(&[Request::Refine(false), Request::Contact(false)])
         .unwrap();
-    let rest = s.wait_newer(None, WAIT).unwrap();
+    let rest = s.wait_generation(g, WAIT).unwrap();
     assert!(
         rest.error.is_none() && rest.stats.converged,
         "{:?}",
@@ -941,9 +948,10 @@ fn a_solve_without_equilibrium_is_an_error_frame_and_a_capped_one_is_marked() {
     assert_eq!(f.positions, rest.positions, "the last good geometry");
 
     let s = Session::new(sample_faces(), Quality::Interactive).unwrap();
-    s.submit_all(&[Request::Refine(false), Request::Contact(false)])
+    let g = s
+        .submit_all(&[Request::Refine(false), Request::Contact(false)])
         .unwrap();
-    s.wait_newer(None, WAIT).unwrap();
+    s.wait_generation(g, WAIT).unwrap();
     let g = s.submit(expression("mouthClose", 1.0)).unwrap();
     let f = s.wait_generation(g, WAIT).unwrap();
     assert!(f.error.is_none(), "{:?}", f.error);
