@@ -95,7 +95,9 @@ const DOMINANT_CURVATURE: f64 = 0.5;
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum ContactStep {
-    /// Keep the prefactored `L`; add the barrier Hessian as a low-rank (Woodbury) update.
+    /// Keep the prefactored `L`; add the barrier Hessian as a low-rank (Woodbury) update, or
+    /// factor `L⊗I₃ + K` afresh when `K` has more columns than that costs
+    /// ([`super::solver`]'s `REFACTOR_COLUMNS_PER_VERTEX`).
     #[default]
     LowRankUpdate,
     /// Factor `L⊗I₃ + K` from scratch at every step (the reference it is measured against).

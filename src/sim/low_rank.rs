@@ -1,5 +1,6 @@
 //! Curvature the prefactored PD matrix `L` lacks, brought into every step as a low-rank
-//! update, so `L` is never refactored.
+//! update, so `L` is not refactored (unless the update has so many columns that a sparse
+//! factorization of `L + K` is cheaper: the solver's `REFACTOR_COLUMNS_PER_VERTEX`).
 //!
 //! Two terms of the energy are stiff where `L` knows nothing about them: the contact barrier
 //! (on the few simulation vertices under active pairs) and the volume barrier (on the few
