@@ -2,8 +2,9 @@
 //! keeps only outcomes): for codes `FROM..TO` of the seeded sweep (seed `SEED`, 1 by default,
 //! as `--sweep-seed`; sliders in `[-0.5, 1.5]`, interactive preset, warm-started, a failed
 //! frame restarts the next from rest), each frame's outcome, pose stages (and how many
-//! carried the tissue), iterations, wall time and how far the jaw moved from the previous
-//! frame.
+//! carried the tissue), iterations, wall time and where its contact time went, whether it
+//! started from rest, its smallest element volume (`det F`) and how far the jaw moved from the
+//! previous frame.
 //!
 //! `cargo run --release -p facesim --example sweep_stages -- 0 30 [SEED]` (from the repository
 //! root; frames before `FROM` are solved too, so the chain is the sweep's, but not printed).

@@ -958,7 +958,7 @@ impl Simulator {
 /// factorization of `L⊗I₃ + K` costs about the same whatever `r`. Measured on a random jump
 /// from rest with the lips pressed (seed 102's frame 0, 2,625 vertices, one thread; columns:
 /// Woodbury against refactoring, ms per step): ~1,000: 28 / 41, ~1,250: 53 / 49, ~1,500:
-/// 78 / 54. An editor drag has at most a few hundred columns and never refactors.
+/// 78 / 54.
 const REFACTOR_COLUMNS_PER_VERTEX: f64 = 0.5;
 
 impl Simulator {
