@@ -958,7 +958,8 @@ impl Simulator {
 /// factorization of `L⊗I₃ + K` costs about the same whatever `r`. Measured on a random jump
 /// from rest with the lips pressed (seed 102's frame 0, 2,625 vertices, one thread; columns:
 /// Woodbury against refactoring, ms per step): ~1,000: 28 / 41, ~1,250: 53 / 49, ~1,500:
-/// 78 / 54.
+/// 78 / 54. Where the factorization fails (a non-positive pivot), the step falls back to
+/// Woodbury.
 const REFACTOR_COLUMNS_PER_VERTEX: f64 = 0.5;
 
 impl Simulator {
@@ -977,17 +978,23 @@ impl Simulator {
             Some(c) => (c.curvature().clone().plus(barrier), c.step_mode()),
             None => (barrier, ContactStep::LowRankUpdate),
         };
-        let mode = match mode {
-            ContactStep::LowRankUpdate
-                if curvature.columns.len() as f64
-                    > REFACTOR_COLUMNS_PER_VERTEX * self.vertex_count() as f64 =>
-            {
-                ContactStep::Refactor
-            }
-            mode => mode,
-        };
-        let inverse = StepInverse::new(&self.global, &self.inverse_columns, curvature, mode)
-            .map_err(SimError::Setup)?;
+        let refactor = mode == ContactStep::LowRankUpdate
+            && curvature.columns.len() as f64
+                > REFACTOR_COLUMNS_PER_VERTEX * self.vertex_count() as f64;
+        let inverse = if refactor {
+            // The sparse factorization can meet a non-positive pivot where the barrier's
+            // curvature dwarfs `L` (seed 105's frame 3); Woodbury's `I + UᵀL⁻¹U` cannot.
+            StepInverse::new(
+                &self.global,
+                &self.inverse_columns,
+                curvature.clone(),
+                ContactStep::Refactor,
+            )
+            .or_else(|_| StepInverse::new(&self.global, &self.inverse_columns, curvature, mode))
+        } else {
+            StepInverse::new(&self.global, &self.inverse_columns, curvature, mode)
+        }
+        .map_err(SimError::Setup)?;
         if let Some(c) = contact {
             c.stats.linear_time += start.elapsed();
         }

@@ -855,6 +855,21 @@ mod tests {
         });
     }
 
+    /// Seed 105 of the random sweep (`facesim bench contact --sweep 16 --sweep-seed 105`):
+    /// frame 3 presses the lips so hard that refactoring `L + K` (chosen over Woodbury for
+    /// its many columns) met a non-positive pivot and the frame failed; such a step falls
+    /// back to Woodbury, and every frame solves crossing- and fold-free. On one thread, as the
+    /// sweep ran (parallel sums round differently on two, and that chain never met the pivot).
+    #[test]
+    fn seed_105_sweep_solves_where_refactoring_fails() {
+        let (sim, actuation) = sample_sim();
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .unwrap()
+            .install(|| solve_sweep(&sim, actuation.as_ref(), 4, 105, |_, _, _, _, _| {}));
+    }
+
     /// Seed 127 of the 1,008-code run (`facesim bench contact --sweep 16 --sweep-seed 127`):
     /// frame 7 swings the jaw 0.66 rad and 1.6 cm while pairs are pressed ~10⁻⁶–10⁻⁵ cm
     /// apart, and failed with "more than 64 collision-free stages": the stage certificate's
