@@ -13,6 +13,7 @@ use anyhow::{Context, Result, bail};
 use facesim::bench::contact_sweep::random_codes;
 use facesim::contact::surface::FaceContact;
 use facesim::model::contact_region::FaceContactSettings;
+use facesim::session::frame::volume_ratios;
 use facesim::sim::{BonePose, Quality};
 
 fn main() -> Result<()> {
@@ -77,7 +78,9 @@ fn main() -> Result<()> {
                         c.map_or(0.0, |c| c.linear_time.as_secs_f64()),
                         c.is_some_and(|c| c.from_rest),
                         c.map(|c| c.gate),
-                        smallest_volume_ratio(sim.mesh(), state.flat_positions()),
+                        volume_ratios(&face.model, state.flat_positions())
+                            .into_iter()
+                            .fold(f64::INFINITY, f64::min),
                     );
                 }
                 Err(facesim::sim::SimError::Intersecting { count, stats }) => {
@@ -99,17 +102,4 @@ fn main() -> Result<()> {
         }
     }
     Ok(())
-}
-
-/// The smallest `det F` (volume over rest volume) of any element at `x` (interleaved).
-fn smallest_volume_ratio(mesh: &facesim::geometry::tet_mesh::TetMesh, x: &[f64]) -> f64 {
-    let at = |v: u32| nalgebra::Vector3::from_column_slice(&x[3 * v as usize..3 * v as usize + 3]);
-    mesh.tets
-        .iter()
-        .enumerate()
-        .map(|(e, t)| {
-            let (a, b, c, d) = (at(t[0]), at(t[1]), at(t[2]), at(t[3]));
-            (b - a).dot(&(c - a).cross(&(d - a))) / 6.0 / mesh.signed_volume(e)
-        })
-        .fold(f64::INFINITY, f64::min)
 }
