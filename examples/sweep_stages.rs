@@ -3,8 +3,9 @@
 //! as `--sweep-seed`; sliders in `[-0.5, 1.5]`, interactive preset, warm-started, a failed
 //! frame restarts the next from rest), each frame's outcome, pose stages (and how many
 //! carried the tissue), iterations, wall time and where its contact time went, whether it
-//! started from rest, its smallest element volume (`det F`) and how far the jaw moved from the
-//! previous frame.
+//! started from rest, its smallest element volume (`det F`), the render surface's creased
+//! edges beside the rig's own at that code ([`facesim::model::creases`]) and how far the jaw
+//! moved from the previous frame.
 //!
 //! `cargo run --release -p facesim --example sweep_stages -- 0 30 [SEED]` (from the repository
 //! root; frames before `FROM` are solved too, so the chain is the sweep's, but not printed).
@@ -50,6 +51,9 @@ fn main() -> Result<()> {
         audit_crossings: true,
         ..Quality::Interactive.settings()
     };
+    let rig = facesim::rig::FaceRig::load(facesim::rig::DEFAULT_RIG_DIR)
+        .context("loading the rig (run from the repository root)")?;
+    let creases = facesim::model::creases::CreaseAudit::new(&face.model);
     let mut state = sim.rest_state();
     let mut previous = BonePose::default();
     for (i, code) in random_codes(to, seed).iter().enumerate() {
@@ -65,7 +69,7 @@ fn main() -> Result<()> {
                     let c = s.contact.as_ref();
                     println!(
                         "frame {i}: ok ({:?}), {} stages ({} carried), {} iterations, {:.2} s \
-                         (staging {:.2} s, broad phase {:.2} s, barrier {:.2} s, filter {:.2} s, linear {:.2} s), from rest {}, gate {:?}, smallest volume ratio {:.1e}, {jaw}",
+                         (staging {:.2} s, broad phase {:.2} s, barrier {:.2} s, filter {:.2} s, linear {:.2} s), from rest {}, gate {:?}, smallest volume ratio {:.1e}, creases {} (the rig's {}), {jaw}",
                         s.termination,
                         c.map_or(0, |c| c.pose_stages),
                         c.map_or(0, |c| c.carried_stages),
@@ -81,6 +85,12 @@ fn main() -> Result<()> {
                         volume_ratios(&face.model, state.flat_positions())
                             .into_iter()
                             .fold(f64::INFINITY, f64::min),
+                        creases
+                            .audit(&face.model.render_positions(state.flat_positions(), &bones))
+                            .edges,
+                        creases
+                            .audit(&facesim::model::target(&rig, &face.model, code)?.render)
+                            .edges,
                     );
                 }
                 Err(facesim::sim::SimError::Intersecting { count, stats }) => {

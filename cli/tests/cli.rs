@@ -496,6 +496,11 @@ fn bench_shapes_measures_one_slider_against_the_rig_and_refuses_unknown_names() 
         max <= 2.0,
         "jawOpen's skin is {max} mm from the rig at worst"
     );
+    // The crease audit of the result and of the rig's own shape (which creases nothing
+    // there).
+    assert!(rows[0]["creases"].is_u64(), "{:?}", rows[0]);
+    assert_eq!(rows[0]["rig_creases"], 0, "{:?}", rows[0]);
+    assert!(table.contains("creases (rig's own)"), "{table}");
 
     let err = stderr_of_failure(facesim().args(["bench", "shapes", "--shapes", "jawOpenn"]));
     assert!(

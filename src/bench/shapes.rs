@@ -23,6 +23,7 @@ use crate::contact::surface::FaceContact;
 use crate::drive::{ActuationModel, Codes};
 use crate::model::audit::CrossingAudit;
 use crate::model::contact_region::FaceContactSettings;
+use crate::model::creases::CreaseAudit;
 use crate::model::deep_lining::{DeepLining, DeepLiningStats, LiningMemory};
 use crate::model::{FaceModel, target};
 use crate::rig::{ExpressionCode, FaceRig, Region};
@@ -54,6 +55,17 @@ pub struct ShapeRow {
     /// New crossings of the rig's own target for the code.
     pub rig_crossings: usize,
     pub rig_crossing_pieces: Vec<(String, usize)>,
+    /// Creased skin and lining edges ([`crate::model::creases`]), by pieces, and a rig vertex
+    /// of the most creased one.
+    #[serde(default)]
+    pub creases: usize,
+    #[serde(default)]
+    pub crease_pieces: Vec<(String, usize)>,
+    #[serde(default)]
+    pub crease_worst_vertex: Option<u32>,
+    /// Creased edges of the rig's own target for the code.
+    #[serde(default)]
+    pub rig_creases: usize,
     /// The deep lining's contact pass, where it ran.
     #[serde(default)]
     pub lining: Option<DeepLiningStats>,
@@ -109,6 +121,7 @@ pub fn measure(
         sim.set_contact(surfaces)?;
     }
     let audit = CrossingAudit::new(model);
+    let crease_audit = CreaseAudit::new(model);
     let region: Vec<Option<Region>> = model
         .render
         .rig_vertices
@@ -143,6 +156,10 @@ pub fn measure(
             crossing_pieces: Vec::new(),
             rig_crossings: 0,
             rig_crossing_pieces: Vec::new(),
+            creases: 0,
+            crease_pieces: Vec::new(),
+            crease_worst_vertex: None,
+            rig_creases: crease_audit.audit(&goal.render).edges,
             lining: None,
         };
         let rig_crossings = audit.audit(model, &goal.render);
@@ -195,6 +212,9 @@ pub fn measure(
                 let crossings = audit.audit(model, &posed);
                 row.crossings = crossings.pairs;
                 row.crossing_pieces = crossings.by_pieces;
+                let creases = crease_audit.audit(&posed);
+                (row.creases, row.crease_pieces, row.crease_worst_vertex) =
+                    (creases.edges, creases.by_piece, creases.worst_rig_vertex);
             }
             Err(e) => row.error = Some(e.to_string()),
         }
@@ -219,11 +239,12 @@ pub fn table(rows: &[ShapeRow]) -> String {
             "lining max",
             "crossings",
             "rig's own crossings",
+            "creases (rig's own)",
             "converged",
             "iterations",
             "ms",
         ],
-        "lllrrrrrrrrlrr",
+        "lllrrrrrrrrrlrr",
     );
     for r in rows {
         let solve = match (&r.termination, &r.error) {
@@ -253,6 +274,7 @@ pub fn table(rows: &[ShapeRow]) -> String {
             format!("{:.2}", r.lining_max_mm),
             r.crossings.to_string(),
             r.rig_crossings.to_string(),
+            format!("{} ({})", r.creases, r.rig_creases),
             solve,
             r.iterations.to_string(),
             format!("{:.0}", r.ms),
@@ -281,6 +303,12 @@ pub struct FaceSummary {
     pub crossing_shapes: usize,
     pub crossings: usize,
     pub crossing_pieces: Vec<(String, usize)>,
+    /// Converged shapes that crease more skin and lining edges than the rig's own shape, and
+    /// their creased edges beyond the rig's.
+    #[serde(default)]
+    pub creasing_shapes: usize,
+    #[serde(default)]
+    pub extra_creases: usize,
 }
 
 /// The skin maximum the mouth's fidelity aims at (mm, per vertex against the rig).
@@ -312,6 +340,8 @@ pub fn summary(rows: &[ShapeRow]) -> Vec<FaceSummary> {
                     crossing_shapes: 0,
                     crossings: 0,
                     crossing_pieces: Vec::new(),
+                    creasing_shapes: 0,
+                    extra_creases: 0,
                 });
                 out.len() - 1
             }
@@ -330,6 +360,10 @@ pub fn summary(rows: &[ShapeRow]) -> Vec<FaceSummary> {
             continue;
         }
         s.converged += 1;
+        if r.creases > r.rig_creases {
+            s.creasing_shapes += 1;
+            s.extra_creases += r.creases - r.rig_creases;
+        }
         if r.lining_mean_mm > s.lining_mean_mm {
             (s.lining_mean_mm, s.lining_worst_shape) = (r.lining_mean_mm, r.code.clone());
         }
@@ -363,8 +397,9 @@ pub fn summary_table(rows: &[ShapeRow]) -> String {
             "lining mean, worst (mm)",
             "shapes crossing (pairs)",
             "crossings by pieces",
+            "shapes creasing beyond the rig (edges)",
         ],
-        "llrlllrl",
+        "llrlllrlr",
     );
     let list = |items: Vec<String>| {
         if items.is_empty() {
@@ -393,6 +428,7 @@ pub fn summary_table(rows: &[ShapeRow]) -> String {
                     .map(|(p, n)| format!("{p} {n}"))
                     .collect(),
             ),
+            format!("{} ({})", s.creasing_shapes, s.extra_creases),
         ]);
     }
     t.to_string()
@@ -426,6 +462,10 @@ mod tests {
             crossing_pieces: Vec::new(),
             rig_crossings: 0,
             rig_crossing_pieces: Vec::new(),
+            creases: 0,
+            crease_pieces: Vec::new(),
+            crease_worst_vertex: None,
+            rig_creases: 0,
             lining: None,
         }
     }
@@ -441,14 +481,19 @@ mod tests {
             ("lower teeth / mouth socket".into(), 4),
             ("face skin / face skin".into(), 1),
         ];
+        (crossing.creases, crossing.rig_creases) = (10, 2);
         let mut smile = row("a", "mouthSmile_L", 1.5, 0.4, true);
         smile.crossings = 2;
         smile.crossing_pieces = vec![("lower teeth / mouth socket".into(), 2)];
+        // Creasing less than the rig, and an unconverged crease: neither counts.
+        smile.rig_creases = 3;
+        let mut pucker = row("a", "mouthPucker", 12.0, 3.0, false);
+        pucker.creases = 50;
         let rows = vec![
             crossing,
             smile,
             row("a", "mouthClose", 9.0, 2.0, true),
-            row("a", "mouthPucker", 12.0, 3.0, false),
+            pucker,
             row("b", "jawOpen", 1.0, 0.3, true),
         ];
         let s = summary(&rows);
@@ -472,6 +517,7 @@ mod tests {
                 ("face skin / face skin".to_string(), 1)
             ]
         );
+        assert_eq!((a.creasing_shapes, a.extra_creases), (1, 8));
         assert!(s[1].skin_over_target.is_empty());
         let table = summary_table(&rows);
         assert!(table.contains("| shapes over 2 mm |"), "{table}");
@@ -481,6 +527,7 @@ mod tests {
             ),
             "{table}"
         );
+        assert!(table.contains("| 1 (8) |"), "{table}");
         assert!(
             table.contains("| b | on | 1 of 1 | 1.00, jawOpen | none |"),
             "{table}"

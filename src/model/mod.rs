@@ -5,6 +5,7 @@ pub mod bindings;
 mod bone_motion;
 pub mod build;
 pub mod contact_region;
+pub mod creases;
 pub mod deep_lining;
 pub mod face;
 pub mod file;
