@@ -476,7 +476,7 @@ pub(super) fn fit_to_rig(
     let render = &face.render;
     let near_lips = lining_near_the_lips(rig, render);
     let on_gum = gum_under(render, &near_lips);
-    let candidates: Vec<Option<Vec<(Binding, Vec<f64>)>>> = (0..render.rest.len())
+    let chosen: Vec<Option<(Binding, Vec<f64>)>> = (0..render.rest.len())
         .into_par_iter()
         .map(|i| {
             let v = render.rig_vertices[i] as usize;
@@ -487,7 +487,7 @@ pub(super) fn fit_to_rig(
             };
             if let Some(gum) = on_gum[i].filter(|gum| gum.distance <= ON_GUM) {
                 let binding = Binding::Rigid(gum.bone);
-                return Some(vec![(binding, fits.errors(face, i, &binding))]);
+                return Some((binding, fits.errors(face, i, &binding)));
             }
             let p = render.rest[i];
             let current = render.bindings[i];
@@ -500,7 +500,7 @@ pub(super) fn fit_to_rig(
                 // The floor of the mouth lies inside the lower arch, where no tissue reaches:
                 // the bones carry it (see the module doc).
                 if on_gum[i].is_some_and(|gum| gum.bone == Bone::Jaw && gum.lingual) {
-                    return Some(vec![(binding, fits.errors(face, i, &binding))]);
+                    return Some((binding, fits.errors(face, i, &binding)));
                 }
                 candidates.push(binding);
             }
@@ -525,15 +525,13 @@ pub(super) fn fit_to_rig(
                     });
                 }
             }
-            Some(
-                candidates
-                    .iter()
-                    .map(|b| (*b, fits.errors(face, i, b)))
-                    .collect(),
-            )
+            let worst = |e: &[f64]| e.iter().copied().fold(0.0, f64::max);
+            candidates
+                .iter()
+                .map(|b| (*b, fits.errors(face, i, b)))
+                .min_by(|a, b| worst(&a.1).total_cmp(&worst(&b.1)))
         })
         .collect();
-    let chosen = consistent_choice(render, candidates);
     let mut report = BindingReport {
         shapes: fits.names.len(),
         ..BindingReport::default()
@@ -589,73 +587,6 @@ pub(super) fn fit_to_rig(
         });
     }
     Ok(report)
-}
-
-/// How much worse over the shapes (cm, largest distance) a binding may reproduce the rig than
-/// a vertex's best and still be taken for sharing its neighbours' element (experiment: 0.02
-/// and 0.08 measured, see docs/performance/fidelity.md, "Creases").
-const CONSISTENCY_SLACK: f64 = 0.02;
-
-/// Sweeps of [`consistent_choice`].
-const CONSISTENCY_SWEEPS: usize = 4;
-
-/// Each vertex's binding from its candidates (with their distances to the rig over the
-/// shapes): the best, then, in a few sweeps, among those within [`CONSISTENCY_SLACK`] of it,
-/// the one whose element the most neighbours on the render surface share.
-fn consistent_choice(
-    render: &RenderSurface,
-    candidates: Vec<Option<Vec<(Binding, Vec<f64>)>>>,
-) -> Vec<Option<(Binding, Vec<f64>)>> {
-    let worst = |e: &[f64]| e.iter().copied().fold(0.0, f64::max);
-    let mut neighbours = vec![Vec::new(); render.rest.len()];
-    for t in &render.triangles {
-        for k in 0..3 {
-            let (a, b) = (t[k] as usize, t[(k + 1) % 3] as usize);
-            neighbours[a].push(b);
-            neighbours[b].push(a);
-        }
-    }
-    for n in &mut neighbours {
-        n.sort_unstable();
-        n.dedup();
-    }
-    let best: Vec<Option<usize>> = candidates
-        .iter()
-        .map(|c| {
-            c.as_ref().and_then(|c| {
-                (0..c.len()).min_by(|&a, &b| worst(&c[a].1).total_cmp(&worst(&c[b].1)))
-            })
-        })
-        .collect();
-    let mut choice = best.clone();
-    let element = |i: usize, k: usize| candidates[i].as_ref().and_then(|c| c[k].0.element());
-    for _ in 0..CONSISTENCY_SWEEPS {
-        for i in 0..render.rest.len() {
-            let (Some(c), Some(b)) = (&candidates[i], best[i]) else {
-                continue;
-            };
-            let limit = worst(&c[b].1) + CONSISTENCY_SLACK;
-            let shared = |k: usize| {
-                let Some(e) = c[k].0.element() else { return 0 };
-                neighbours[i]
-                    .iter()
-                    .filter(|&&j| choice[j].and_then(|kj| element(j, kj)) == Some(e))
-                    .count()
-            };
-            choice[i] = (0..c.len())
-                .filter(|&k| worst(&c[k].1) <= limit)
-                .max_by(|&a, &b| {
-                    shared(a)
-                        .cmp(&shared(b))
-                        .then(worst(&c[b].1).total_cmp(&worst(&c[a].1)))
-                });
-        }
-    }
-    candidates
-        .into_iter()
-        .zip(choice)
-        .map(|(c, k)| Some(c?.swap_remove(k?)))
-        .collect()
 }
 
 /// Barycentric weights beyond this absolute sum extrapolate too far to be a candidate.
