@@ -1,14 +1,15 @@
 //! Per-frame view of the random-code sweep with contact on (`facesim bench contact --sweep`
 //! keeps only outcomes): for codes `FROM..TO` of the seeded sweep (seed `SEED`, 1 by default,
-//! as `--sweep-seed`; sliders in `[-0.5, 1.5]`, interactive preset, warm-started, a failed
-//! frame restarts the next from rest), each frame's outcome, pose stages (and how many
-//! carried the tissue), iterations, wall time and where its contact time went, whether it
-//! started from rest, its smallest element volume (`det F`), the render surface's creased
-//! edges beside the rig's own at that code ([`facesim::model::creases`]) and how far the jaw
-//! moved from the previous frame.
+//! as `--sweep-seed`; sliders in `[-0.5, 1.5]`, the interactive preset unless `QUALITY` names
+//! another, warm-started, a failed frame restarts the next from rest), each frame's outcome,
+//! pose stages (and how many carried the tissue), iterations, wall time and where its contact
+//! time went, whether it started from rest, its smallest element volume (`det F`), the render
+//! surface's creased edges beside the rig's own at that code ([`facesim::model::creases`])
+//! and how far the jaw moved from the previous frame.
 //!
-//! `cargo run --release -p facesim --example sweep_stages -- 0 30 [SEED]` (from the repository
-//! root; frames before `FROM` are solved too, so the chain is the sweep's, but not printed).
+//! `cargo run --release -p facesim --example sweep_stages -- 0 30 [SEED [QUALITY]]` (from the
+//! repository root; frames before `FROM` are solved too, so the chain is the sweep's, but not
+//! printed).
 
 use anyhow::{Context, Result, bail};
 use facesim::bench::contact_sweep::random_codes;
@@ -18,18 +19,25 @@ use facesim::session::frame::volume_ratios;
 use facesim::sim::{BonePose, Quality};
 
 fn main() -> Result<()> {
-    let args: Vec<usize> = std::env::args()
-        .skip(1)
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let quality: Quality = match args.get(3) {
+        Some(q) => q.parse().map_err(anyhow::Error::msg)?,
+        None => Quality::Interactive,
+    };
+    let numbers: Vec<usize> = args
+        .iter()
+        .take(3)
         .map(|a| {
             a.parse()
                 .with_context(|| format!("'{a}' is not a frame index"))
         })
         .collect::<Result<_>>()?;
-    let (from, to, seed) = match args[..] {
+    let (from, to, seed) = match numbers[..] {
         [from, to] => (from, to, 1),
         [from, to, seed] => (from, to, seed as u64),
         _ => bail!(
-            "usage: sweep_stages FROM TO [SEED] (frame indices, FROM < TO; seed 1 by default)"
+            "usage: sweep_stages FROM TO [SEED [QUALITY]] (frame indices, FROM < TO; seed 1 and \
+             the interactive preset by default)"
         ),
     };
     if from >= to {
@@ -49,7 +57,7 @@ fn main() -> Result<()> {
     )?)?;
     let settings = facesim::sim::SolveSettings {
         audit_crossings: true,
-        ..Quality::Interactive.settings()
+        ..quality.settings()
     };
     let rig = facesim::rig::FaceRig::load(facesim::rig::DEFAULT_RIG_DIR)
         .context("loading the rig (run from the repository root)")?;

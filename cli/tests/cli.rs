@@ -500,7 +500,12 @@ fn bench_shapes_measures_one_slider_against_the_rig_and_refuses_unknown_names() 
     // there).
     assert!(rows[0]["creases"].is_u64(), "{:?}", rows[0]);
     assert_eq!(rows[0]["rig_creases"], 0, "{:?}", rows[0]);
-    assert!(table.contains("creases (rig's own)"), "{table}");
+    assert_eq!(
+        rows[0]["creases_beyond_rig"], rows[0]["creases"],
+        "{:?}",
+        rows[0]
+    );
+    assert!(table.contains("creases beyond the rig"), "{table}");
 
     let err = stderr_of_failure(facesim().args(["bench", "shapes", "--shapes", "jawOpenn"]));
     assert!(

@@ -66,6 +66,9 @@ pub struct ShapeRow {
     /// Creased edges of the rig's own target for the code.
     #[serde(default)]
     pub rig_creases: usize,
+    /// Of `creases`, the edges that the rig's own target does not crease.
+    #[serde(default)]
+    pub creases_beyond_rig: usize,
     /// The deep lining's contact pass, where it ran.
     #[serde(default)]
     pub lining: Option<DeepLiningStats>,
@@ -160,6 +163,7 @@ pub fn measure(
             crease_pieces: Vec::new(),
             crease_worst_vertex: None,
             rig_creases: crease_audit.audit(&goal.render).edges,
+            creases_beyond_rig: 0,
             lining: None,
         };
         let rig_crossings = audit.audit(model, &goal.render);
@@ -215,6 +219,7 @@ pub fn measure(
                 let creases = crease_audit.audit(&posed);
                 (row.creases, row.crease_pieces, row.crease_worst_vertex) =
                     (creases.edges, creases.by_piece, creases.worst_rig_vertex);
+                row.creases_beyond_rig = crease_audit.audit_beyond(&posed, &goal.render).edges;
             }
             Err(e) => row.error = Some(e.to_string()),
         }
@@ -239,7 +244,7 @@ pub fn table(rows: &[ShapeRow]) -> String {
             "lining max",
             "crossings",
             "rig's own crossings",
-            "creases (rig's own)",
+            "creases beyond the rig (all / rig's own)",
             "converged",
             "iterations",
             "ms",
@@ -274,7 +279,10 @@ pub fn table(rows: &[ShapeRow]) -> String {
             format!("{:.2}", r.lining_max_mm),
             r.crossings.to_string(),
             r.rig_crossings.to_string(),
-            format!("{} ({})", r.creases, r.rig_creases),
+            format!(
+                "{} ({} / {})",
+                r.creases_beyond_rig, r.creases, r.rig_creases
+            ),
             solve,
             r.iterations.to_string(),
             format!("{:.0}", r.ms),
@@ -303,8 +311,8 @@ pub struct FaceSummary {
     pub crossing_shapes: usize,
     pub crossings: usize,
     pub crossing_pieces: Vec<(String, usize)>,
-    /// Converged shapes that crease more skin and lining edges than the rig's own shape, and
-    /// their creased edges beyond the rig's.
+    /// Converged shapes that crease skin and lining edges the rig's own shape does not, and
+    /// those edges summed.
     #[serde(default)]
     pub creasing_shapes: usize,
     #[serde(default)]
@@ -360,9 +368,9 @@ pub fn summary(rows: &[ShapeRow]) -> Vec<FaceSummary> {
             continue;
         }
         s.converged += 1;
-        if r.creases > r.rig_creases {
+        if r.creases_beyond_rig > 0 {
             s.creasing_shapes += 1;
-            s.extra_creases += r.creases - r.rig_creases;
+            s.extra_creases += r.creases_beyond_rig;
         }
         if r.lining_mean_mm > s.lining_mean_mm {
             (s.lining_mean_mm, s.lining_worst_shape) = (r.lining_mean_mm, r.code.clone());
@@ -466,6 +474,7 @@ mod tests {
             crease_pieces: Vec::new(),
             crease_worst_vertex: None,
             rig_creases: 0,
+            creases_beyond_rig: 0,
             lining: None,
         }
     }
@@ -481,14 +490,18 @@ mod tests {
             ("lower teeth / mouth socket".into(), 4),
             ("face skin / face skin".into(), 1),
         ];
-        (crossing.creases, crossing.rig_creases) = (10, 2);
+        (
+            crossing.creases,
+            crossing.rig_creases,
+            crossing.creases_beyond_rig,
+        ) = (10, 2, 8);
         let mut smile = row("a", "mouthSmile_L", 1.5, 0.4, true);
         smile.crossings = 2;
         smile.crossing_pieces = vec![("lower teeth / mouth socket".into(), 2)];
-        // Creasing less than the rig, and an unconverged crease: neither counts.
-        smile.rig_creases = 3;
+        // Creasing only where the rig does, and an unconverged crease: neither counts.
+        (smile.creases, smile.rig_creases) = (3, 3);
         let mut pucker = row("a", "mouthPucker", 12.0, 3.0, false);
-        pucker.creases = 50;
+        (pucker.creases, pucker.creases_beyond_rig) = (50, 50);
         let rows = vec![
             crossing,
             smile,

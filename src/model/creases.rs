@@ -96,7 +96,20 @@ impl CreaseAudit {
 
     /// [`CreaseAudit::creased`], counted by pieces.
     pub fn audit(&self, positions: &[Point3<f64>]) -> Creases {
-        let creased = self.creased(positions);
+        self.count(self.creased(positions))
+    }
+
+    /// The edges creased at `positions` that are not creased at `reference` (the rig's own
+    /// shape for the same code), counted by pieces.
+    pub fn audit_beyond(&self, positions: &[Point3<f64>], reference: &[Point3<f64>]) -> Creases {
+        let known = self.creased(reference);
+        let mut creased = self.creased(positions);
+        // Both lists are in edge order.
+        creased.retain(|c| known.binary_search_by_key(&c.edge, |k| k.edge).is_err());
+        self.count(creased)
+    }
+
+    fn count(&self, creased: Vec<CreasedEdge>) -> Creases {
         let mut counts: Vec<(Region, usize)> = Vec::new();
         for f in &creased {
             match counts.iter_mut().find(|(r, _)| *r == f.piece) {
@@ -188,6 +201,8 @@ mod tests {
             .flatten()
             .any(|&u| render.rig_vertices[u as usize] == worst);
         assert!(near, "the worst edge is at the moved vertex");
+        assert_eq!(audit.audit_beyond(&posed, rest), creases);
+        assert_eq!(audit.audit_beyond(&posed, &posed).edges, 0);
         let turn = nalgebra::Rotation3::from_euler_angles(0.3, -0.2, 0.5);
         let moved: Vec<_> = rest
             .iter()
