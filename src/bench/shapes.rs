@@ -316,7 +316,7 @@ pub struct FaceSummary {
     #[serde(default)]
     pub creasing_shapes: usize,
     #[serde(default)]
-    pub extra_creases: usize,
+    pub creases_beyond_rig: usize,
 }
 
 /// The skin maximum the mouth's fidelity aims at (mm, per vertex against the rig).
@@ -349,7 +349,7 @@ pub fn summary(rows: &[ShapeRow]) -> Vec<FaceSummary> {
                     crossings: 0,
                     crossing_pieces: Vec::new(),
                     creasing_shapes: 0,
-                    extra_creases: 0,
+                    creases_beyond_rig: 0,
                 });
                 out.len() - 1
             }
@@ -370,7 +370,7 @@ pub fn summary(rows: &[ShapeRow]) -> Vec<FaceSummary> {
         s.converged += 1;
         if r.creases_beyond_rig > 0 {
             s.creasing_shapes += 1;
-            s.extra_creases += r.creases_beyond_rig;
+            s.creases_beyond_rig += r.creases_beyond_rig;
         }
         if r.lining_mean_mm > s.lining_mean_mm {
             (s.lining_mean_mm, s.lining_worst_shape) = (r.lining_mean_mm, r.code.clone());
@@ -436,7 +436,7 @@ pub fn summary_table(rows: &[ShapeRow]) -> String {
                     .map(|(p, n)| format!("{p} {n}"))
                     .collect(),
             ),
-            format!("{} ({})", s.creasing_shapes, s.extra_creases),
+            format!("{} ({})", s.creasing_shapes, s.creases_beyond_rig),
         ]);
     }
     t.to_string()
@@ -530,7 +530,7 @@ mod tests {
                 ("face skin / face skin".to_string(), 1)
             ]
         );
-        assert_eq!((a.creasing_shapes, a.extra_creases), (1, 8));
+        assert_eq!((a.creasing_shapes, a.creases_beyond_rig), (1, 8));
         assert!(s[1].skin_over_target.is_empty());
         let table = summary_table(&rows);
         assert!(table.contains("| shapes over 2 mm |"), "{table}");

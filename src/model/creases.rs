@@ -19,8 +19,8 @@ use crate::rig::Region;
 /// `n₁·n₂` below which an edge counts as creased: its triangles are more than 120° apart.
 pub const CREASED_COS: f64 = -0.5;
 
-/// The audit of one face's render surface: its skin and lining edges between two
-/// triangles, and those triangles' normals at rest.
+/// The audit of one face's render surface: its skin and lining edges between two triangles
+/// less than 90° apart at rest (the sharper ones are the rig's own creases).
 #[derive(Clone, Debug)]
 pub struct CreaseAudit {
     /// `(edge, its two triangles, the edge's piece)`, for edges that were not creased at rest.
@@ -96,7 +96,7 @@ impl CreaseAudit {
 
     /// [`CreaseAudit::creased`], counted by pieces.
     pub fn audit(&self, positions: &[Point3<f64>]) -> Creases {
-        self.count(self.creased(positions))
+        self.count(&self.creased(positions))
     }
 
     /// The edges creased at `positions` that are not creased at `reference` (the rig's own
@@ -106,15 +106,15 @@ impl CreaseAudit {
         let mut creased = self.creased(positions);
         // Both lists are in edge order.
         creased.retain(|c| known.binary_search_by_key(&c.edge, |k| k.edge).is_err());
-        self.count(creased)
+        self.count(&creased)
     }
 
-    fn count(&self, creased: Vec<CreasedEdge>) -> Creases {
+    fn count(&self, creased: &[CreasedEdge]) -> Creases {
         let mut counts: Vec<(Region, usize)> = Vec::new();
-        for f in &creased {
-            match counts.iter_mut().find(|(r, _)| *r == f.piece) {
+        for c in creased {
+            match counts.iter_mut().find(|(r, _)| *r == c.piece) {
                 Some(entry) => entry.1 += 1,
-                None => counts.push((f.piece, 1)),
+                None => counts.push((c.piece, 1)),
             }
         }
         counts.sort_by(|a, b| b.1.cmp(&a.1).then(a.0.cmp(&b.0)));
@@ -127,7 +127,7 @@ impl CreaseAudit {
             worst_rig_vertex: creased
                 .iter()
                 .min_by(|a, b| a.cos.total_cmp(&b.cos))
-                .map(|f| self.rig_vertices[f.edge[0] as usize]),
+                .map(|c| self.rig_vertices[c.edge[0] as usize]),
         }
     }
 }
