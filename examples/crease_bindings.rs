@@ -3,7 +3,8 @@
 //! deep lining's pass, as `facesim bench shapes` poses it
 //! ([`facesim::model::creases`]). For each creased edge, the kinds of binding of the four
 //! vertices of its two triangles (embedded, blended, rigid, between the bones) and whether
-//! the embedded ones share one element.
+//! the embedded ones share one element, and those elements' volumes (against the median
+//! element's) and shape quality (`6√2·V / ℓ³`, ℓ the RMS edge length: 1 regular, 0 flat).
 //!
 //! With `--rebind`, the neutral's render bindings are first chosen again by today's importer
 //! (the tissue must be the sample's), to measure a change of the bindings without rebuilding
@@ -63,6 +64,54 @@ fn main() -> Result<()> {
         Binding::Bones { .. } => "J",
     };
     let element = |v: u32| model.render.bindings[v as usize].element();
+    // Element volumes relative to the median element's: slivers carry render vertices with
+    // long levers.
+    let mut volumes: Vec<f64> = (0..model.mesh.tets.len())
+        .map(|e| model.mesh.signed_volume(e))
+        .collect();
+    let median_volume = {
+        let mut v = volumes.clone();
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    volumes.iter_mut().for_each(|v| *v /= median_volume);
+    // Shape quality: 6√2·V / (RMS edge length)³, 1 for a regular element, 0 for a flat one.
+    let quality: Vec<f64> = model
+        .mesh
+        .tets
+        .iter()
+        .enumerate()
+        .map(|(e, t)| {
+            let p = t.map(|v| model.mesh.vertices[v as usize]);
+            let mut sum = 0.0;
+            for i in 0..4 {
+                for j in i + 1..4 {
+                    sum += (p[i] - p[j]).norm_squared();
+                }
+            }
+            6.0 * 2f64.sqrt() * model.mesh.signed_volume(e) / (sum / 6.0).powf(1.5)
+        })
+        .collect();
+    let all_embedded: Vec<f64> = model
+        .render
+        .bindings
+        .iter()
+        .filter_map(|b| b.element())
+        .map(|e| volumes[e as usize])
+        .collect();
+    let all_quality: Vec<f64> = model
+        .render
+        .bindings
+        .iter()
+        .filter_map(|b| b.element())
+        .map(|e| quality[e as usize])
+        .collect();
+    println!(
+        "embedded render vertices' elements: median volume {:.2} of the median element's, \
+         median quality {:.2}",
+        median_of(all_embedded),
+        median_of(all_quality)
+    );
     for (name, expression) in facesim::bench::shapes::single_shapes() {
         if !only.is_empty() && !only.contains(&name) {
             continue;
@@ -80,6 +129,8 @@ fn main() -> Result<()> {
         let creased = audit.creased(&posed);
         let mut kinds: BTreeMap<String, usize> = BTreeMap::new();
         let mut err = Vec::new();
+        let mut creased_volumes = Vec::new();
+        let mut creased_quality = Vec::new();
         for f in &creased {
             let ([a, b], [t1, t2]) = (f.edge, f.triangles);
             let mut vs: Vec<u32> = model.render.triangles[t1]
@@ -95,6 +146,8 @@ fn main() -> Result<()> {
             let mut elements: Vec<_> = vs.iter().filter_map(|&v| element(v)).collect();
             elements.sort_unstable();
             elements.dedup();
+            creased_volumes.extend(elements.iter().map(|&e| volumes[e as usize]));
+            creased_quality.extend(elements.iter().map(|&e| quality[e as usize]));
             let key = format!("{} in {} elements", k.join(""), elements.len());
             *kinds.entry(key).or_default() += 1;
             for v in [a, b] {
@@ -104,10 +157,19 @@ fn main() -> Result<()> {
         err.sort_by(f64::total_cmp);
         let median = err.get(err.len() / 2).copied().unwrap_or(0.0);
         println!(
-            "{name}: {} creased edges (rig {}), their vertices' median error {median:.2} mm; {kinds:?}",
+            "{name}: {} creased edges (rig {}), their vertices' median error {median:.2} mm, \
+             their elements' median volume {:.2} of the median element's and quality {:.2}; \
+             {kinds:?}",
             creased.len(),
             audit.creased(&goal).len(),
+            median_of(creased_volumes),
+            median_of(creased_quality),
         );
     }
     Ok(())
+}
+
+fn median_of(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
 }
