@@ -2,7 +2,9 @@
 //! crossing frame is never passed on as a clean frame of the preset. Each frame carries the
 //! solver's termination and residual and an independent crossing audit of what the artist
 //! sees ([`CrossingAudit`]: every edge of the skin, mouth lining and teeth against every
-//! triangle, crossings the rig already has at rest left out).
+//! triangle, crossings the rig already has at rest left out), and the creased edges of the
+//! skin and lining ([`CreaseAudit`]: where the surface turned back on itself; the rig's own
+//! shapes crease a few, so a count is read against the rig where it is at hand).
 
 use std::path::Path;
 
@@ -12,6 +14,7 @@ use serde::{Deserialize, Serialize};
 use super::{ExportError, Out};
 use crate::model::FaceModel;
 use crate::model::audit::CrossingAudit;
+use crate::model::creases::CreaseAudit;
 use crate::model::deep_lining::DeepLiningStats;
 use crate::session::Frame;
 use crate::sim::{Quality, Termination};
@@ -37,6 +40,9 @@ pub struct FrameRecord {
     pub crossings: usize,
     /// Those crossings by pair of pieces (`"face skin / mouth socket"`).
     pub crossing_pieces: Vec<(String, usize)>,
+    /// Creased skin and lining edges (the crease audit).
+    #[serde(default)]
+    pub creases: usize,
     /// The deep lining's contact pass, where it ran (final frames with contact).
     #[serde(default)]
     pub lining: Option<DeepLiningStats>,
@@ -66,6 +72,7 @@ pub struct ExportReport {
 /// Builds the report frame by frame.
 pub struct ReportBuilder {
     audit: CrossingAudit,
+    creases: CreaseAudit,
     report: ExportReport,
 }
 
@@ -80,6 +87,7 @@ impl ReportBuilder {
     ) -> Self {
         ReportBuilder {
             audit: CrossingAudit::new(model),
+            creases: CreaseAudit::new(model),
             report: ExportReport {
                 format: REPORT_FORMAT.into(),
                 version: REPORT_VERSION,
@@ -118,6 +126,7 @@ impl ReportBuilder {
             from_rest: stats.from_rest,
             crossings: crossings.pairs,
             crossing_pieces: crossings.by_pieces,
+            creases: self.creases.audit(&positions).edges,
             lining: stats.lining.clone(),
         });
     }
