@@ -4,7 +4,8 @@
 //! ([`facesim::model::creases`]). For each creased edge, the kinds of binding of the four
 //! vertices of its two triangles (embedded, blended, rigid, between the bones) and whether
 //! the embedded ones share one element, and those elements' volumes (against the median
-//! element's) and shape quality (`6√2·V / ℓ³`, ℓ the RMS edge length: 1 regular, 0 flat).
+//! element's) and shape quality (the mean ratio of `geometry::shell::shape_quality`: 1
+//! regular, 0 flat).
 //!
 //! With `--rebind`, the neutral's render bindings are first chosen again by today's importer
 //! (the tissue must be the sample's), to measure a change of the bindings without rebuilding
@@ -16,10 +17,12 @@ use std::collections::BTreeMap;
 use anyhow::{Context, Result};
 use facesim::contact::surface::FaceContact;
 use facesim::drive::Codes;
+use facesim::geometry::shell::shape_quality;
 use facesim::model::Binding;
 use facesim::model::contact_region::FaceContactSettings;
 use facesim::model::deep_lining::{DeepLining, LiningMemory};
 use facesim::sim::Quality;
+use facesim::stats::median;
 
 fn main() -> Result<()> {
     let mut only: Vec<String> = std::env::args().skip(1).collect();
@@ -64,53 +67,33 @@ fn main() -> Result<()> {
         Binding::Bones { .. } => "J",
     };
     let element = |v: u32| model.render.bindings[v as usize].element();
-    // Element volumes relative to the median element's: slivers carry render vertices with
-    // long levers.
-    let mut volumes: Vec<f64> = (0..model.mesh.tets.len())
+    // Element volumes relative to the median element's, and shape quality (the mesh report's
+    // mean ratio).
+    let volumes: Vec<f64> = (0..model.mesh.tets.len())
         .map(|e| model.mesh.signed_volume(e))
         .collect();
-    let median_volume = {
-        let mut v = volumes.clone();
-        v.sort_by(f64::total_cmp);
-        v[v.len() / 2]
+    let median_volume = median(&volumes);
+    let relative_volume = |e: u32| volumes[e as usize] / median_volume;
+    let quality = |e: u32| {
+        let p = model.mesh.tets[e as usize].map(|v| model.mesh.vertices[v as usize]);
+        shape_quality(&p, volumes[e as usize])
     };
-    volumes.iter_mut().for_each(|v| *v /= median_volume);
-    // Shape quality: 6√2·V / (RMS edge length)³, 1 for a regular element, 0 for a flat one.
-    let quality: Vec<f64> = model
-        .mesh
-        .tets
-        .iter()
-        .enumerate()
-        .map(|(e, t)| {
-            let p = t.map(|v| model.mesh.vertices[v as usize]);
-            let mut sum = 0.0;
-            for i in 0..4 {
-                for j in i + 1..4 {
-                    sum += (p[i] - p[j]).norm_squared();
-                }
-            }
-            6.0 * 2f64.sqrt() * model.mesh.signed_volume(e) / (sum / 6.0).powf(1.5)
-        })
-        .collect();
-    let all_embedded: Vec<f64> = model
+    let embedded: Vec<u32> = model
         .render
         .bindings
         .iter()
         .filter_map(|b| b.element())
-        .map(|e| volumes[e as usize])
-        .collect();
-    let all_quality: Vec<f64> = model
-        .render
-        .bindings
-        .iter()
-        .filter_map(|b| b.element())
-        .map(|e| quality[e as usize])
         .collect();
     println!(
         "embedded render vertices' elements: median volume {:.2} of the median element's, \
          median quality {:.2}",
-        median_of(all_embedded),
-        median_of(all_quality)
+        median(
+            &embedded
+                .iter()
+                .map(|&e| relative_volume(e))
+                .collect::<Vec<_>>()
+        ),
+        median(&embedded.iter().map(|&e| quality(e)).collect::<Vec<_>>()),
     );
     for (name, expression) in facesim::bench::shapes::single_shapes() {
         if !only.is_empty() && !only.contains(&name) {
@@ -146,30 +129,24 @@ fn main() -> Result<()> {
             let mut elements: Vec<_> = vs.iter().filter_map(|&v| element(v)).collect();
             elements.sort_unstable();
             elements.dedup();
-            creased_volumes.extend(elements.iter().map(|&e| volumes[e as usize]));
-            creased_quality.extend(elements.iter().map(|&e| quality[e as usize]));
+            creased_volumes.extend(elements.iter().map(|&e| relative_volume(e)));
+            creased_quality.extend(elements.iter().map(|&e| quality(e)));
             let key = format!("{} in {} elements", k.join(""), elements.len());
             *kinds.entry(key).or_default() += 1;
             for v in [a, b] {
                 err.push(10.0 * (posed[v as usize] - goal[v as usize]).norm());
             }
         }
-        err.sort_by(f64::total_cmp);
-        let median = err.get(err.len() / 2).copied().unwrap_or(0.0);
         println!(
-            "{name}: {} creased edges (rig {}), their vertices' median error {median:.2} mm, \
+            "{name}: {} creased edges (rig {}), their vertices' median error {:.2} mm, \
              their elements' median volume {:.2} of the median element's and quality {:.2}; \
              {kinds:?}",
             creased.len(),
             audit.creased(&goal).len(),
-            median_of(creased_volumes),
-            median_of(creased_quality),
+            median(&err),
+            median(&creased_volumes),
+            median(&creased_quality),
         );
     }
     Ok(())
-}
-
-fn median_of(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
 }

@@ -76,8 +76,10 @@ fn main() -> Result<()> {
             match &result {
                 Ok(s) => {
                     let c = s.contact.as_ref();
-                    let posed = face.model.render_positions(state.flat_positions(), &bones);
-                    let goal = facesim::model::target(&rig, &face.model, code)?.render;
+                    let creased = creases
+                        .creased(&face.model.render_positions(state.flat_positions(), &bones));
+                    let rig_creased =
+                        creases.creased(&facesim::model::target(&rig, &face.model, code)?.render);
                     println!(
                         "frame {i}: ok ({:?}), {} stages ({} carried), {} iterations, {:.2} s \
                          (staging {:.2} s, broad phase {:.2} s, barrier {:.2} s, filter {:.2} s, linear {:.2} s), from rest {}, gate {:?}, smallest volume ratio {:.1e}, creases {} ({} not in the rig's shape), {jaw}",
@@ -96,8 +98,8 @@ fn main() -> Result<()> {
                         volume_ratios(&face.model, state.flat_positions())
                             .into_iter()
                             .fold(f64::INFINITY, f64::min),
-                        creases.audit(&posed).edges,
-                        creases.audit_beyond(&posed, &goal).edges,
+                        creased.len(),
+                        facesim::model::creases::beyond(&creased, &rig_creased).len(),
                     );
                 }
                 Err(facesim::sim::SimError::Intersecting { count, stats }) => {

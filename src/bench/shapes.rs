@@ -23,7 +23,7 @@ use crate::contact::surface::FaceContact;
 use crate::drive::{ActuationModel, Codes};
 use crate::model::audit::CrossingAudit;
 use crate::model::contact_region::FaceContactSettings;
-use crate::model::creases::CreaseAudit;
+use crate::model::creases::{CreaseAudit, beyond};
 use crate::model::deep_lining::{DeepLining, DeepLiningStats, LiningMemory};
 use crate::model::{FaceModel, target};
 use crate::rig::{ExpressionCode, FaceRig, Region};
@@ -162,10 +162,12 @@ pub fn measure(
             creases: 0,
             crease_pieces: Vec::new(),
             crease_worst_vertex: None,
-            rig_creases: crease_audit.audit(&goal.render).edges,
+            rig_creases: 0,
             creases_beyond_rig: 0,
             lining: None,
         };
+        let rig_creased = crease_audit.creased(&goal.render);
+        row.rig_creases = rig_creased.len();
         let rig_crossings = audit.audit(model, &goal.render);
         (row.rig_crossings, row.rig_crossing_pieces) =
             (rig_crossings.pairs, rig_crossings.by_pieces);
@@ -216,10 +218,11 @@ pub fn measure(
                 let crossings = audit.audit(model, &posed);
                 row.crossings = crossings.pairs;
                 row.crossing_pieces = crossings.by_pieces;
-                let creases = crease_audit.audit(&posed);
+                let creased = crease_audit.creased(&posed);
+                let creases = crease_audit.count(&creased);
                 (row.creases, row.crease_pieces, row.crease_worst_vertex) =
                     (creases.edges, creases.by_piece, creases.worst_rig_vertex);
-                row.creases_beyond_rig = crease_audit.audit_beyond(&posed, &goal.render).edges;
+                row.creases_beyond_rig = beyond(&creased, &rig_creased).len();
             }
             Err(e) => row.error = Some(e.to_string()),
         }

@@ -226,13 +226,7 @@ pub fn quality(mesh: &TetMesh) -> MeshQuality {
         }
         vmin = vmin.min(volume);
         vmax = vmax.max(volume);
-        let mut edge_sq = 0.0;
-        for i in 0..4 {
-            for j in i + 1..4 {
-                edge_sq += (p[i] - p[j]).norm_squared();
-            }
-        }
-        shapes.push(12.0 * (3.0 * volume.max(0.0)).powf(2.0 / 3.0) / edge_sq);
+        shapes.push(shape_quality(&p, volume));
         for angle in dihedral_angles(&p) {
             min_dihedral = min_dihedral.min(angle);
             max_dihedral = max_dihedral.max(angle);
@@ -249,6 +243,18 @@ pub fn quality(mesh: &TetMesh) -> MeshQuality {
         volume_ratio: vmax / vmin,
         inverted,
     }
+}
+
+/// The mean ratio `12·(3V)^(2/3) / Σ edge²` of a tetrahedron of volume `volume`: 1 for a
+/// regular one, 0 when flat (or inverted).
+pub fn shape_quality(p: &[Point3<f64>; 4], volume: f64) -> f64 {
+    let mut edge_sq = 0.0;
+    for i in 0..4 {
+        for j in i + 1..4 {
+            edge_sq += (p[i] - p[j]).norm_squared();
+        }
+    }
+    12.0 * (3.0 * volume.max(0.0)).powf(2.0 / 3.0) / edge_sq
 }
 
 /// The six interior dihedral angles of a tetrahedron, degrees.

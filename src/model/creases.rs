@@ -99,17 +99,8 @@ impl CreaseAudit {
         self.count(&self.creased(positions))
     }
 
-    /// The edges creased at `positions` that are not creased at `reference` (the rig's own
-    /// shape for the same code), counted by pieces.
-    pub fn audit_beyond(&self, positions: &[Point3<f64>], reference: &[Point3<f64>]) -> Creases {
-        let known = self.creased(reference);
-        let mut creased = self.creased(positions);
-        // Both lists are in edge order.
-        creased.retain(|c| known.binary_search_by_key(&c.edge, |k| k.edge).is_err());
-        self.count(&creased)
-    }
-
-    fn count(&self, creased: &[CreasedEdge]) -> Creases {
+    /// Creased edges counted by pieces.
+    pub fn count(&self, creased: &[CreasedEdge]) -> Creases {
         let mut counts: Vec<(Region, usize)> = Vec::new();
         for c in creased {
             match counts.iter_mut().find(|(r, _)| *r == c.piece) {
@@ -130,6 +121,16 @@ impl CreaseAudit {
                 .map(|c| self.rig_vertices[c.edge[0] as usize]),
         }
     }
+}
+
+/// The edges of `creased` that are not in `known` (the creases of the rig's own shape for
+/// the same code); both as [`CreaseAudit::creased`] gives them, in edge order.
+pub fn beyond(creased: &[CreasedEdge], known: &[CreasedEdge]) -> Vec<CreasedEdge> {
+    creased
+        .iter()
+        .filter(|c| known.binary_search_by_key(&c.edge, |k| k.edge).is_err())
+        .copied()
+        .collect()
 }
 
 /// One creased edge (render-vertex indices).
@@ -201,8 +202,12 @@ mod tests {
             .flatten()
             .any(|&u| render.rig_vertices[u as usize] == worst);
         assert!(near, "the worst edge is at the moved vertex");
-        assert_eq!(audit.audit_beyond(&posed, rest), creases);
-        assert_eq!(audit.audit_beyond(&posed, &posed).edges, 0);
+        let creased = audit.creased(&posed);
+        assert_eq!(
+            audit.count(&beyond(&creased, &audit.creased(rest))),
+            creases
+        );
+        assert!(beyond(&creased, &creased).is_empty());
         let turn = nalgebra::Rotation3::from_euler_angles(0.3, -0.2, 0.5);
         let moved: Vec<_> = rest
             .iter()
